@@ -1,0 +1,25 @@
+# Two commands do all the set-up on a fresh Debian 12 / Python 3.11 machine:
+#   make demo   calibrate the built-in demo scene and print the result
+#   make test   run the test suite
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.semcal-installed
+export OMP_NUM_THREADS ?= 2
+
+.PHONY: demo test bench lint clean-venv
+
+$(STAMP): requirements.txt setup.py .ci/setup-env.sh $(wildcard .ci/setup.d/*.sh)
+	VENV=$(VENV) bash .ci/setup-env.sh
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/semcal demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q test
+
+bench: $(STAMP)
+	$(VENV)/bin/semcal bench
+
+clean-venv:
+	rm -rf $(VENV)

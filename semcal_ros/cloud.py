@@ -1,0 +1,44 @@
+"""The labelled point cloud that crosses module borders (maps, scans)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class LabelledCloud:
+    """Points (N, 3) float with a SemanticKITTI label per point and optional extra fields."""
+
+    xyz: np.ndarray
+    label: np.ndarray | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.xyz = np.asarray(self.xyz)
+        if self.xyz.ndim != 2 or self.xyz.shape[1] != 3:
+            raise ValueError(f"points must have shape (N, 3), got {self.xyz.shape}")
+        if self.label is not None:
+            self.label = np.asarray(self.label)
+            if self.label.shape != (len(self.xyz),):
+                raise ValueError(
+                    f"{len(self.label)} labels for {len(self.xyz)} points")
+        for name, values in self.extra.items():
+            if len(values) != len(self.xyz):
+                raise ValueError(f"field '{name}' has {len(values)} values for {len(self.xyz)} points")
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+    def select(self, mask: np.ndarray) -> "LabelledCloud":
+        return LabelledCloud(
+            self.xyz[mask],
+            None if self.label is None else self.label[mask],
+            {k: v[mask] for k, v in self.extra.items()},
+        )
+
+    def finite(self) -> "LabelledCloud":
+        """Without NaN/inf points."""
+        ok = np.all(np.isfinite(self.xyz), axis=1)
+        return self if ok.all() else self.select(ok)

@@ -1,0 +1,1 @@
+"""File formats: labelled PLY maps, pose and camera_info YAML, label images, KITTI layouts."""

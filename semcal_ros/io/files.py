@@ -1,0 +1,116 @@
+"""YAML and image files of the engine: poses, camera_info, label images."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from semcal_ros.camera import CameraModel
+from semcal_ros.pose import Pose
+
+
+def _load_yaml(path: str | Path, what: str) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: invalid YAML ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a YAML mapping")
+    return data
+
+
+def read_camera_info(path: str | Path) -> CameraModel:
+    data = _load_yaml(path, "camera_info")
+    try:
+        return CameraModel.from_camera_info_dict(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def write_camera_info(path: str | Path, camera: CameraModel, name: str = "camera") -> None:
+    Path(path).write_text(yaml.safe_dump(camera.to_camera_info_dict(name), sort_keys=False))
+
+
+def pose_from_dict(data: dict) -> Pose:
+    """A pose YAML mapping: translation + rotation quaternion, or translation + rpy_deg (body)."""
+    if "translation" not in data:
+        raise ValueError("pose has no 'translation'")
+    t = np.asarray(data["translation"], dtype=float)
+    if t.shape != (3,):
+        raise ValueError("pose 'translation' must be [x, y, z]")
+    if "rotation" in data:
+        q = np.asarray(data["rotation"], dtype=float)
+        if q.shape != (4,):
+            raise ValueError("pose 'rotation' must be a quaternion [qx, qy, qz, qw]")
+        return Pose(t, q)
+    if "rpy_deg" in data:
+        rpy = np.asarray(data["rpy_deg"], dtype=float)
+        if rpy.shape != (3,) or not np.all(np.isfinite(rpy)):
+            raise ValueError("pose 'rpy_deg' must be [roll, pitch, yaw] in degrees")
+        return Pose.from_body_rpy_deg(t, rpy)
+    raise ValueError("pose has neither 'rotation' nor 'rpy_deg'")
+
+
+def read_pose(path: str | Path) -> Pose:
+    data = _load_yaml(path, "pose")
+    try:
+        return pose_from_dict(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def pose_to_dict(pose: Pose, extra: dict[str, Any] | None = None,
+                 frame_id: str = "map", child_frame_id: str = "camera_optical") -> dict:
+    out: dict[str, Any] = {
+        "frame_id": frame_id,
+        "child_frame_id": child_frame_id,
+        "translation": [float(v) for v in pose.translation],
+        "rotation": [float(v) for v in pose.quaternion],
+    }
+    out.update(extra or {})
+    return out
+
+
+def write_pose(path: str | Path, pose: Pose, extra: dict[str, Any] | None = None) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(yaml.safe_dump(pose_to_dict(pose, extra), sort_keys=False))
+
+
+def read_label_image(path: str | Path) -> np.ndarray:
+    """8-bit single-channel Cityscapes trainId image."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"label image not found: {path}")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError(f"{path}: not a readable image")
+    if img.dtype != np.uint8 or img.ndim != 2:
+        raise ValueError(f"{path}: label image must be 8-bit single channel "
+                         f"(got {img.dtype}, {img.ndim} dims)")
+    return img
+
+
+def write_label_image(path: str | Path, labels: np.ndarray) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), np.ascontiguousarray(labels, dtype=np.uint8)):
+        raise OSError(f"could not write {path}")
+
+
+def write_rgb_image(path: str | Path, rgb: np.ndarray) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
+        raise OSError(f"could not write {path}")
+
+
+def read_rgb_image(path: str | Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"{path}: not a readable image")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)

@@ -1,0 +1,57 @@
+"""Labelled PLY maps: binary little-endian, vertex float x, y, z, ushort label.
+
+Open3D's PLY readers drop a ``ushort label`` property, so maps go through ``plyfile``, which keeps
+arbitrary vertex properties and reads the binary body with numpy.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from plyfile import PlyData, PlyElement, PlyParseError
+
+from semcal_ros.cloud import LabelledCloud
+
+
+def read_ply(path: str | Path, require_label: bool = True) -> LabelledCloud:
+    """Read a PLY point cloud; other vertex properties end up in ``extra``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"map file not found: {path}")
+    try:
+        data = PlyData.read(str(path))
+    except (PlyParseError, ValueError, EOFError) as exc:
+        raise ValueError(f"{path}: not a readable PLY file ({exc})") from None
+    if "vertex" not in data:
+        raise ValueError(f"{path}: PLY file has no vertex element")
+    vertex = data["vertex"].data
+    names = vertex.dtype.names or ()
+    missing = [n for n in ("x", "y", "z") if n not in names]
+    if missing:
+        raise ValueError(f"{path}: PLY vertex has no {', '.join(missing)} property")
+    if require_label and "label" not in names:
+        raise ValueError(f"{path}: PLY vertex has no 'label' property (expected ushort label)")
+    xyz = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1).astype(np.float64)
+    label = vertex["label"].astype(np.uint16) if "label" in names else None
+    extra = {n: np.asarray(vertex[n]) for n in names if n not in ("x", "y", "z", "label")}
+    return LabelledCloud(xyz, label, extra)
+
+
+def write_ply(path: str | Path, cloud: LabelledCloud) -> None:
+    """Write the engine's map format (plus any extra fields, e.g. intensity as float)."""
+    n = len(cloud)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    extra = {k: np.asarray(v) for k, v in cloud.extra.items()}
+    fields += [(k, v.dtype.newbyteorder("<").str) for k, v in extra.items()]
+    if cloud.label is not None:
+        fields.append(("label", "<u2"))
+    arr = np.empty(n, dtype=fields)
+    for i, axis in enumerate("xyz"):
+        arr[axis] = cloud.xyz[:, i]
+    for k, v in extra.items():
+        arr[k] = v
+    if cloud.label is not None:
+        arr["label"] = cloud.label
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    PlyData([PlyElement.describe(arr, "vertex")], text=False, byte_order="<").write(str(path))
