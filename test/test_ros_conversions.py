@@ -269,3 +269,23 @@ def test_params_bad_value_is_named(ros_context):
             declare_and_read(node, _Params())
     finally:
         node.destroy_node()
+
+
+# --- parameter files -------------------------------------------------------------------------
+def _node_param_files():
+    from semcal_ros.ros.replay import ReplayParams
+
+    return [("bag_player", ReplayParams())]
+
+
+@pytest.mark.parametrize("node,defaults", _node_param_files(), ids=lambda v: str(v)[:20])
+def test_config_file_matches_node_parameters(node, defaults):
+    """Every key of config/<node>.yaml is a parameter of the node, and every value fits it."""
+    from pathlib import Path
+
+    from semcal_ros.config import apply_flat, dataclass_fields_flat, load_node_params
+
+    path = Path(__file__).resolve().parents[1] / "config" / f"{node}.yaml"
+    flat = load_node_params(path, node)
+    assert set(flat) == set(dataclass_fields_flat(defaults)), "config file and dataclass differ"
+    apply_flat(defaults, flat)  # raises on a value that does not fit
