@@ -1,0 +1,69 @@
+"""``semcal segment-cloud``: label one lidar scan with an ONNX range-image model.
+
+Reads a PLY (x, y, z and optionally intensity) or a KITTI ``.bin`` scan and writes the engine's
+labelled PLY (float x, y, z, float intensity when known, ushort label = SemanticKITTI id).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+#: PLY vertex properties read as the intensity channel, first match wins.
+INTENSITY_FIELDS = ("intensity", "remission", "reflectance")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "segment-cloud", help="label a lidar scan with an ONNX range-image model",
+        description="Run an ONNX range-image segmentation model (RangeNet++/SalsaNext "
+                    "convention, configured by a model config YAML, see config/models/) on one "
+                    "scan and write every point with its SemanticKITTI label.")
+    parser.add_argument("--model", required=True, type=Path, help="ONNX model file")
+    parser.add_argument("--model-config", required=True, type=Path,
+                        help="model config YAML (kind: range)")
+    parser.add_argument("scan", type=Path, metavar="SCAN",
+                        help="scan: .ply with x, y, z[, intensity] or KITTI .bin")
+    parser.add_argument("--out", required=True, type=Path, help="labelled PLY to write")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="onnxruntime threads (default 0: all cores)")
+    parser.set_defaults(func=run)
+
+
+def read_scan_file(path: Path):
+    """(xyz (N, 3), intensity (N,) or None) of a .ply or KITTI .bin scan."""
+    from semcal_ros.io import kitti, ply
+
+    suffix = path.suffix.lower()
+    if suffix == ".bin":
+        cloud = kitti.read_scan(path)
+    elif suffix == ".ply":
+        cloud = ply.read_ply(path, require_label=False)  # names a missing x, y or z
+    else:
+        raise ValueError(f"{path}: unknown scan format '{suffix}' (expected .ply or KITTI .bin)")
+    intensity = next((cloud.extra[f] for f in INTENSITY_FIELDS if f in cloud.extra), None)
+    return cloud.xyz, intensity
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from semcal_ros.cloud import LabelledCloud
+    from semcal_ros.io.ply import write_ply
+    from semcal_ros.labels import SEMANTIC_KITTI
+    from semcal_ros.segmentation.cloud import CloudSegmenter
+    from semcal_ros.segmentation.decode import class_shares
+    from semcal_ros.segmentation.onnx_runner import RunnerParams
+
+    segmenter = CloudSegmenter.from_files(args.model, args.model_config,
+                                          RunnerParams(threads=args.threads))
+    xyz, intensity = read_scan_file(args.scan)
+    start = time.perf_counter()
+    labels = segmenter.segment(xyz, intensity)
+    seconds = time.perf_counter() - start
+    extra = {} if intensity is None else {"intensity": np.asarray(intensity, dtype=np.float32)}
+    write_ply(args.out, LabelledCloud(xyz, labels, extra))
+    print(f"{args.scan}: {len(labels)} points labelled in {seconds * 1e3:.0f} ms -> {args.out}"
+          f"\n  {class_shares(labels, SEMANTIC_KITTI)}")
+    return 0
