@@ -183,3 +183,18 @@ def spin_until(executor, condition: Callable[[], bool], timeout: float,
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         executor.spin_once(timeout_sec=0.05)
+
+
+def publish_until(executor, publisher, msg, condition: Callable[[], bool], timeout: float,
+                  what: str = "a reply", period: float = 0.3) -> None:
+    """Publish ``msg`` every ``period`` s (discovery takes a moment) until ``condition()``."""
+    deadline = time.monotonic() + timeout
+    next_publish = 0.0
+    while not condition():
+        now = time.monotonic()
+        if now > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        if now >= next_publish:
+            publisher.publish(msg)
+            next_publish = now + period
+        executor.spin_once(timeout_sec=0.05)

@@ -273,9 +273,12 @@ def test_params_bad_value_is_named(ros_context):
 
 # --- parameter files -------------------------------------------------------------------------
 def _node_param_files():
+    from semcal_ros.ros.nodes.cloud_segmenter import CloudSegmenterParams
+    from semcal_ros.ros.nodes.image_segmenter import ImageSegmenterParams
     from semcal_ros.ros.replay import ReplayParams
 
-    return [("bag_player", ReplayParams())]
+    return [("bag_player", ReplayParams()), ("image_segmenter", ImageSegmenterParams()),
+            ("cloud_segmenter", CloudSegmenterParams())]
 
 
 @pytest.mark.parametrize("node,defaults", _node_param_files(), ids=lambda v: str(v)[:20])
@@ -289,3 +292,18 @@ def test_config_file_matches_node_parameters(node, defaults):
     flat = load_node_params(path, node)
     assert set(flat) == set(dataclass_fields_flat(defaults)), "config file and dataclass differ"
     apply_flat(defaults, flat)  # raises on a value that does not fit
+
+
+def test_add_label_field_keeps_every_field_and_replaces_a_label():
+    from semcal_ros.ros.nodes.cloud_segmenter import add_label_field
+
+    dtype = np.dtype({"names": ["label", "x", "y", "z", "t"],
+                      "formats": ["<u4", "<f4", "<f4", "<f4", "<f8"],
+                      "offsets": [0, 8, 12, 16, 24], "itemsize": 40})
+    points = np.zeros(4, dtype)
+    points["x"], points["t"], points["label"] = [1, 2, 3, 4], [0.5] * 4, 99
+    out = add_label_field(points, np.array([40, 50, 70, 80], np.uint16))
+    assert out.dtype.names == ("x", "y", "z", "t", "label") and out.dtype["label"] == np.uint16
+    np.testing.assert_array_equal(out["x"], points["x"])
+    np.testing.assert_array_equal(out["t"], points["t"])
+    np.testing.assert_array_equal(out["label"], [40, 50, 70, 80])

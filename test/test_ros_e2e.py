@@ -17,7 +17,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 
-from ros_helpers import RosGraph, spin_until  # noqa: E402
+from ros_helpers import RosGraph, publish_until, spin_until  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -126,3 +126,116 @@ def test_bag_player_reports_a_missing_bag(graph, tmp_path):
     player = graph.start_node("bag_player", params={"bag": str(tmp_path / "nope")})
     assert player.wait(20) == 1
     assert "bag not found" in player.log()
+
+
+# --- segmenter nodes -------------------------------------------------------------------------
+class Listener:
+    """A node in the test's domain with an executor; collects messages per topic."""
+
+    def __init__(self, graph: RosGraph, name: str = "test_listener") -> None:
+        self.ctx = graph.context()
+        self.node = rclpy.create_node(name, context=self.ctx)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.got: dict[str, list] = {}
+
+    def subscribe(self, msg_type, topic: str, profile) -> list:
+        self.got[topic] = received = []
+        self.node.create_subscription(msg_type, topic, received.append, profile)
+        return received
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.ctx.try_shutdown()
+
+
+@pytest.fixture
+def listener(graph):
+    lis = Listener(graph)
+    yield lis
+    lis.close()
+
+
+def test_image_segmenter_node_labels_images(graph, listener, tmp_path):
+    import yaml
+    from onnx_models import colour_model
+    from sensor_msgs.msg import Image
+
+    from semcal_ros.labels import CITYSCAPES_ID, INVALID
+
+    palette = np.array([[250, 20, 20], [20, 240, 20], [20, 20, 250], [128, 128, 128]])
+    w, h = 96, 64
+    norm = {"mean": [123.675, 116.28, 103.53], "std": [58.395, 57.12, 57.375]}
+    model = colour_model(tmp_path / "image.onnx", palette, w, h, **norm)
+    config = tmp_path / "image.yaml"
+    config.write_text(yaml.safe_dump({"kind": "image", "input_width": w, "input_height": h,
+                                      "classes": ["building", "vegetation", "sky", None],
+                                      **norm}))
+    node = graph.start_node("image_segmenter", params={"model": str(model),
+                                                       "model_config": str(config)},
+                            remap={"image": "/cam/image_raw", "labels": "/cam/labels"})
+    rows = (np.arange(h) >= h // 2).astype(int)[:, None]
+    cols = (np.arange(w) >= w // 2).astype(int)[None, :]
+    rgb = palette[rows * 2 + cols].astype(np.uint8)
+    expected = np.array([[CITYSCAPES_ID["building"], CITYSCAPES_ID["vegetation"]],
+                         [CITYSCAPES_ID["sky"], INVALID]], np.uint8)[rows, cols]
+    labels = listener.subscribe(Image, "/cam/labels", qos.sensor(5))
+    pub = listener.node.create_publisher(Image, "/cam/image_raw", qos.reliable(2))
+    header = conv.make_header("cam_optical", 42.5)
+    bgr = conv.numpy_to_image(np.ascontiguousarray(rgb[:, :, ::-1]), "bgr8", header)
+    publish_until(listener.executor, pub, bgr, lambda: len(labels) > 0, 40, "a label image")
+    out = labels[0]
+    assert (out.encoding, out.header.frame_id) == ("mono8", "cam_optical")
+    assert conv.stamp_to_seconds(out.header.stamp) == 42.5
+    np.testing.assert_array_equal(conv.image_to_labels(out), expected)
+    # an encoding the node cannot read is reported, and the node stays up
+    pub.publish(conv.numpy_to_image(expected, "mono8", header))
+    node.wait_for_log("expected an rgb8 or bgr8 image, got encoding 'mono8'", 20)
+    assert node.running()
+
+
+def test_cloud_segmenter_node_adds_labels(graph, listener, tmp_path):
+    import yaml
+    from onnx_models import range_channel_model
+
+    from semcal_ros.labels import KITTI_ID
+
+    means, stds = [12.12, 10.88, 0.23, -1.04, 0.21], [12.32, 11.47, 6.91, 0.86, 0.16]
+    model = range_channel_model(tmp_path / "range.onnx", 0, [5.0, 20.0], means[0], stds[0],
+                                64, 2048)
+    config = tmp_path / "range.yaml"
+    config.write_text(yaml.safe_dump({"kind": "range", "height": 64, "width": 2048,
+                                      "classes": ["pole", "building"], "means": means,
+                                      "stds": stds}))
+    graph.start_node("cloud_segmenter", params={"model": str(model),
+                                                "model_config": str(config)})
+    # a wall 20 m ahead and a pole 5 m ahead, in a driver-like layout with padding
+    wy, wz = np.meshgrid(np.linspace(-5, 5, 200), np.linspace(-2, 1, 20))
+    wall = np.column_stack([np.full(wy.size, 20.0), wy.ravel(), wz.ravel()])
+    pz = np.linspace(-1.4, 0.2, 30)
+    pole = np.column_stack([np.full(pz.size, 5.0), np.zeros(pz.size), pz])
+    xyz = np.vstack([wall, pole])
+    dtype = np.dtype({"names": ["x", "y", "z", "intensity", "ring"],
+                      "formats": ["<f4", "<f4", "<f4", "<f4", "<u2"],
+                      "offsets": [0, 4, 8, 16, 20], "itemsize": 24})
+    points = np.zeros(len(xyz), dtype)
+    points["x"], points["y"], points["z"] = xyz.T
+    points["intensity"] = np.linspace(0, 1, len(xyz))
+    points["ring"] = np.arange(len(xyz)) % 64
+    expected = np.r_[np.full(len(wall), KITTI_ID["building"]), np.full(len(pole), KITTI_ID["pole"])]
+    out = listener.subscribe(PointCloud2, "labelled_points", qos.sensor(5))
+    pub = listener.node.create_publisher(PointCloud2, "points", qos.reliable(2))
+    msg = conv.array_to_pointcloud2(points, conv.make_header("lidar", 7.0))
+    publish_until(listener.executor, pub, msg, lambda: len(out) > 0, 40, "a labelled scan")
+    cloud = conv.pointcloud2_to_cloud(out[0], require_label=True)
+    np.testing.assert_array_equal(cloud.label, expected)
+    np.testing.assert_allclose(cloud.xyz, xyz.astype(np.float32))
+    np.testing.assert_array_equal(cloud.extra["ring"], points["ring"])
+    assert out[0].header.frame_id == "lidar" and conv.stamp_to_seconds(out[0].header.stamp) == 7.0
+
+
+def test_segmenter_without_model_exits_with_a_clear_error(graph):
+    node = graph.start_node("cloud_segmenter")
+    assert node.wait(20) == 1
+    assert "parameters 'model' (ONNX file) and 'model_config' (YAML) are required" in node.log()

@@ -1,0 +1,100 @@
+"""``cloud_segmenter``: lidar scans in, the same scans with a ``label`` field out.
+
+Subscribes ``points`` (PointCloud2 with x, y, z and optionally intensity, any layout), runs the
+user's range-image ONNX model (:class:`~semcal_ros.segmentation.cloud.CloudSegmenter`, parameters
+``model`` and ``model_config``) and publishes ``labelled_points``: every input field unchanged,
+plus ``label`` (uint16 SemanticKITTI ids), same header. Scans that already carry a ``label`` field
+(simulation, an upstream segmenter) need no segmenter: feed them to ``map_builder`` directly.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.lib import recfunctions
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+
+from semcal_ros.ros import conversions as conv
+from semcal_ros.ros import qos
+from semcal_ros.ros.diagnostics import Diagnostics, Level
+from semcal_ros.ros.latest import LatestWorker, require_model
+from semcal_ros.ros.params import declare_and_read
+from semcal_ros.ros.runtime import run_node
+from semcal_ros.segmentation.onnx_runner import RunnerParams
+
+
+@dataclass
+class CloudSegmenterParams:
+    model: str = ""  # ONNX range-image model (required)
+    model_config: str = ""  # its YAML, e.g. config/models/salsanext_semantickitti.yaml (required)
+    intensity_field: str = "intensity"  # field fed as remission ("" or missing: none)
+    queue_size: int = 5  # scans waiting while the model runs (the oldest is dropped)
+    runner: RunnerParams = field(default_factory=RunnerParams)
+    diagnostics_period: float = 1.0  # s (0: off)
+
+
+def add_label_field(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``points`` (structured, any layout) with a ``label`` uint16 field set (replaced if there)."""
+    if "label" in (points.dtype.names or ()):
+        points = recfunctions.drop_fields(points, "label", usemask=False)
+    points = recfunctions.repack_fields(points)
+    out = np.empty(len(points), dtype=points.dtype.descr + [("label", "<u2")])
+    for name in points.dtype.names:
+        out[name] = points[name]
+    out["label"] = labels
+    return out
+
+
+class CloudSegmenterNode(Node):
+    def __init__(self) -> None:
+        super().__init__("cloud_segmenter")
+        from semcal_ros.segmentation.cloud import CloudSegmenter
+
+        self.opts = declare_and_read(self, CloudSegmenterParams())
+        require_model(self.opts.model, self.opts.model_config)
+        self.segmenter = CloudSegmenter.from_files(self.opts.model, self.opts.model_config,
+                                                   self.opts.runner)
+        overrides = qos.overridable()
+        self.publisher = self.create_publisher(PointCloud2, "labelled_points", qos.sensor(5),
+                                               qos_overriding_options=overrides)
+        self.worker = LatestWorker(self._segment, self._failed, self.opts.queue_size)
+        self.create_subscription(PointCloud2, "points", self.worker.put, qos.sensor(5),
+                                 qos_overriding_options=overrides)
+        self.diagnostics = Diagnostics(self, self._report, self.opts.diagnostics_period)
+        self.get_logger().info(f"ready: {self.resolve_topic_name('points')} -> "
+                               f"{self.resolve_topic_name('labelled_points')} with "
+                               f"{self.opts.model}")
+
+    def close(self) -> None:
+        self.worker.stop()
+
+    def _segment(self, msg: PointCloud2) -> None:
+        points = conv.pointcloud2_to_array(msg)
+        cloud = conv.pointcloud2_to_cloud(msg)  # names a missing x/y/z field
+        name = self.opts.intensity_field
+        intensity = np.asarray(points[name], np.float32) if name and name in points.dtype.names \
+            else None
+        labels = self.segmenter.segment(cloud.xyz, intensity)
+        out = conv.array_to_pointcloud2(add_label_field(points, labels), msg.header)
+        out.height, out.width = msg.height, msg.width
+        out.row_step = out.point_step * msg.width
+        out.is_dense = msg.is_dense
+        self.publisher.publish(out)
+
+    def _failed(self, text: str) -> None:
+        self.get_logger().error(text, throttle_duration_sec=5.0)
+
+    def _report(self) -> tuple[Level, str, dict[str, Any]]:
+        return self.worker.report("scans")
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(CloudSegmenterNode, threads=2, args=args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
