@@ -1,0 +1,111 @@
+"""The paper's masked, beta-normalised loss, computed on integer label images.
+
+Colours are a fixed function of labels, so the per-pixel colour distance is a lookup in a
+class-pair table: no float colour images are ever built. The loss is the mean over valid pixels
+(beta * sum / numel in the paper's notation), which gives the optimiser's tolerances a fixed meaning.
+
+Validity, as in the paper's CARLA set-up: the target must carry a usable class; a pixel where no map
+point landed is rendered as sky, which counts where the target is sky and is masked where it is not
+(such holes come from map sparsity, not from a wrong pose).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from semcal_ros.labels import INVALID, SKY, palette_array
+
+
+@dataclass(frozen=True)
+class LossParams:
+    kind: str = "l2"  # "l2" (squared colour distance) or "huber"
+    huber_delta: float = 0.3
+    crop_top: float = 0.0  # fraction of image rows, from the top, left out of the loss
+    min_coverage: float = 0.05  # fewer rendered pixels over the target's non-sky area = degenerate
+    degenerate_loss: float = 10.0  # loss of a view that shows (almost) none of the map
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("l2", "huber"):
+            raise ValueError(f"loss kind must be 'l2' or 'huber', not '{self.kind}'")
+        if not 0.0 <= self.crop_top < 1.0:
+            raise ValueError("crop_top must be in [0, 1)")
+
+
+def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
+    """float64[256, 256]: loss between the colours of two aligned classes (colours in [0, 1])."""
+    colours = palette_array().astype(np.float64) / 255.0
+    diff = colours[:, None, :] - colours[None, :, :]
+    if kind == "l2":
+        return np.sum(diff * diff, axis=2)
+    a = np.abs(diff)
+    huber = np.where(a <= delta, 0.5 * a * a, delta * (a - 0.5 * delta))
+    return np.sum(huber, axis=2)
+
+
+def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
+                   params: LossParams) -> tuple[float, float]:
+    """(loss, coverage) in numpy; ``target`` holds aligned classes (INVALID = ignore)."""
+    top = int(round(params.crop_top * target.shape[0]))
+    r = rendered[top:].ravel()
+    t = target[top:].ravel()
+    empty = r == INVALID
+    valid = (t != INVALID) & (~empty | (t == SKY))
+    r_eff = np.where(empty, SKY, r)
+    scene = (t != INVALID) & (t != SKY)
+    n_scene = int(scene.sum())
+    coverage = float((scene & ~empty).sum()) / n_scene if n_scene else 0.0
+    n_valid = int(valid.sum())
+    if n_valid == 0 or coverage < params.min_coverage:
+        return params.degenerate_loss, coverage
+    return float(table[r_eff[valid], t[valid]].sum() / n_valid), coverage
+
+
+@numba.njit(cache=True, nogil=True)
+def _loss_kernel(rendered, target, table, start):
+    total = 0.0
+    n_valid = 0
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r == INVALID:
+                continue
+            n_covered += 1
+        elif r == INVALID:
+            r = SKY
+        total += table[r, t]
+        n_valid += 1
+    return total, n_valid, n_scene, n_covered
+
+
+class LabelLoss:
+    """The loss against one target image, ready to be evaluated many times."""
+
+    def __init__(self, target_aligned: np.ndarray, params: LossParams) -> None:
+        self.params = params
+        self.shape = target_aligned.shape
+        self.target = np.ascontiguousarray(target_aligned, dtype=np.uint8).ravel()
+        self.table = pair_table(params.kind, params.huber_delta)
+        self.start = int(round(params.crop_top * self.shape[0])) * self.shape[1]
+
+    def __call__(self, rendered: np.ndarray) -> float:
+        return self.evaluate(rendered)[0]
+
+    def evaluate(self, rendered: np.ndarray) -> tuple[float, float]:
+        """(loss, coverage of the target's non-sky pixels by rendered points)."""
+        if rendered.shape != self.shape:
+            raise ValueError(f"rendered image {rendered.shape} != target {self.shape}")
+        total, n_valid, n_scene, n_covered = _loss_kernel(
+            np.ascontiguousarray(rendered).ravel(), self.target, self.table, self.start)
+        coverage = n_covered / n_scene if n_scene else 0.0
+        if n_valid == 0 or coverage < self.params.min_coverage:
+            return self.params.degenerate_loss, coverage
+        return total / n_valid, coverage

@@ -1,0 +1,79 @@
+"""Pictures people look at instead of numbers: the map over the image, the loss curve."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from semcal_ros.camera import CameraModel
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.labels import INVALID, LabelMapping, colorize
+from semcal_ros.params import RenderParams
+from semcal_ros.pose import Pose
+from semcal_ros.render import make_view, prepare_map
+from semcal_ros.render.fast import render
+
+
+def render_map_labels(map_cloud: LabelledCloud, camera: CameraModel, pose: Pose,
+                      mapping: LabelMapping | None = None,
+                      params: RenderParams | None = None) -> np.ndarray:
+    """Aligned label image of the map seen from ``pose`` at full resolution."""
+    rp = params or RenderParams()
+    pmap = prepare_map(map_cloud, mapping, center=pose.translation, radius=rp.crop_radius or None)
+    view = make_view(camera, pose, pmap.origin, rp.splat_lambda, rp.radius_max, rp.near, rp.far,
+                     depth_falloff=rp.depth_falloff)
+    return render(pmap, view)
+
+
+def blend_labels(rgb: np.ndarray, labels: np.ndarray, alpha: float = 0.5) -> np.ndarray:
+    """Label colours blended over an RGB image where a label exists, with class borders drawn."""
+    out = rgb.astype(np.float32).copy()
+    drawn = labels != INVALID
+    colours = colorize(labels).astype(np.float32)
+    out[drawn] = (1 - alpha) * out[drawn] + alpha * colours[drawn]
+    edges = cv2.Canny(labels, 0, 1) > 0
+    out[edges] = (255, 255, 255)
+    return out.clip(0, 255).astype(np.uint8)
+
+
+def render_overlay(map_cloud: LabelledCloud, camera: CameraModel, pose: Pose, rgb: np.ndarray,
+                   mapping: LabelMapping | None = None,
+                   params: RenderParams | None = None) -> np.ndarray:
+    """The map rendered at ``pose`` over the camera image (RGB, same size as the image)."""
+    if rgb.shape[:2] != (camera.height, camera.width):
+        raise ValueError(f"overlay image is {rgb.shape[1]}x{rgb.shape[0]}, camera is "
+                         f"{camera.width}x{camera.height}")
+    if rgb.ndim == 2:
+        rgb = np.repeat(rgb[:, :, None], 3, axis=2)
+    return blend_labels(rgb, render_map_labels(map_cloud, camera, pose, mapping, params))
+
+
+def loss_curve(history: list[tuple[int, int, float]], width: int = 800, height: int = 400) -> np.ndarray:
+    """RGB plot of the loss per evaluation (log scale), one colour per stage, best-so-far in black.
+
+    Drawn with OpenCV, already a dependency, rather than adding a plotting library for one chart.
+    """
+    img = np.full((height, width, 3), 255, np.uint8)
+    if not history:
+        return img
+    losses = np.array([h[2] for h in history], dtype=float)
+    stages = np.array([h[1] for h in history])
+    logl = np.log10(np.maximum(losses, 1e-6))
+    lo, hi = float(logl.min()), float(logl.max())
+    hi = hi if hi > lo else lo + 1.0
+    m = 40
+    xs = m + (np.arange(len(losses)) / max(len(losses) - 1, 1)) * (width - 2 * m)
+    ys = height - m - (logl - lo) / (hi - lo) * (height - 2 * m)
+    palette = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189)]
+    for x, y, s in zip(xs, ys, stages):
+        cv2.circle(img, (int(x), int(y)), 1, palette[int(s) % len(palette)], -1)
+    best = np.minimum.accumulate(logl)
+    by = height - m - (best - lo) / (hi - lo) * (height - 2 * m)
+    pts = np.stack([xs, by], axis=1).astype(np.int32)
+    cv2.polylines(img, [pts], False, (0, 0, 0), 1)
+    cv2.rectangle(img, (m, m), (width - m, height - m), (0, 0, 0), 1)
+    cv2.putText(img, f"loss 1e{hi:.1f}", (2, m - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    cv2.putText(img, f"1e{lo:.1f}", (2, height - m + 15), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    cv2.putText(img, f"{len(losses)} evaluations (colour = stage)", (width // 2 - 120, height - 10),
+                cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
+    return img

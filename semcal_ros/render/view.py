@@ -1,0 +1,86 @@
+"""Everything one render needs besides the map: camera, pose, splat size, as plain numbers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from semcal_ros.camera import CameraModel
+from semcal_ros.pose import Pose
+
+#: Splat radii are quantised to 1/RADIUS_STEPS pixel; one precomputed disc per step.
+RADIUS_STEPS = 4
+DEPTH_BITS = 24
+MAX_DEPTH_MM = (1 << DEPTH_BITS) - 1
+EMPTY_KEY = np.uint32(0xFFFFFFFF)
+
+
+@dataclass(frozen=True)
+class View:
+    width: int
+    height: int
+    rotation: np.ndarray  # (3, 3) local map -> camera
+    translation: np.ndarray  # (3,) local map -> camera
+    intrinsics: np.ndarray  # fx, fy, cx, cy
+    distortion: np.ndarray  # k1, k2, p1, p2, k3
+    bounds: np.ndarray  # xmin, xmax, ymin, ymax of normalised coordinates in view
+    splat_lambda: float  # radius (px) = splat_lambda / distance (m)
+    radius_max: float  # px
+    near: float
+    far: float
+    disc_offsets: np.ndarray  # (K, 2) int32 du, dv of all discs, concatenated
+    disc_start: np.ndarray  # (S + 2,) int32: disc s = offsets[start[s]:start[s+1]]
+    disc_falloff: np.ndarray  # (K,) float64: 1 + depth_falloff * (offset / radius)^2
+
+
+def disc_table(radius_max: float, depth_falloff: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel offsets of filled discs of radius s / RADIUS_STEPS, s = 0..S (s=0 is one pixel).
+
+    Each offset carries a depth factor that grows towards the disc's rim. Among points of one
+    surface (nearly equal depth) a pixel then goes to the point whose centre is nearest, not to the
+    nearest point: plain nearest-wins discs let every region grow by most of a radius into the
+    farther region beside it, which biases the pose (the camera drifts up and back). Across real
+    occlusions (depth gaps larger than the falloff) the nearer surface still wins.
+    """
+    steps = int(np.floor(radius_max * RADIUS_STEPS))
+    offsets, falloff, start = [], [], [0]
+    for s in range(steps + 1):
+        r = s / RADIUS_STEPS
+        span = int(np.floor(r))
+        du, dv = np.meshgrid(np.arange(-span, span + 1), np.arange(-span, span + 1))
+        rho2 = du * du + dv * dv
+        inside = rho2 <= r * r
+        offsets.append(np.stack([du[inside], dv[inside]], axis=1))
+        falloff.append(1.0 + depth_falloff * rho2[inside] / max(r * r, 1.0))
+        start.append(start[-1] + int(inside.sum()))
+    return (np.ascontiguousarray(np.concatenate(offsets), dtype=np.int32),
+            np.asarray(start, dtype=np.int32),
+            np.ascontiguousarray(np.concatenate(falloff), dtype=np.float64))
+
+
+_DISC_CACHE: dict[tuple[float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda: float,
+              radius_max: float, near: float = 0.3, far: float = 200.0,
+              bounds: np.ndarray | None = None, depth_falloff: float = 0.0) -> View:
+    """A view of the map (whose local origin is ``origin``) from ``pose``."""
+    r, t = pose.world_to_camera()
+    t_local = t + r @ np.asarray(origin, float)
+    key = (float(radius_max), float(depth_falloff))
+    if key not in _DISC_CACHE:
+        _DISC_CACHE[key] = disc_table(*key)
+    offsets, start, falloff = _DISC_CACHE[key]
+    if bounds is None:
+        bounds = np.asarray(camera.normalized_bounds(margin_px=radius_max))
+    return View(
+        width=camera.width, height=camera.height,
+        rotation=np.ascontiguousarray(r), translation=np.ascontiguousarray(t_local),
+        intrinsics=np.array([camera.fx, camera.fy, camera.cx, camera.cy]),
+        distortion=np.ascontiguousarray(camera.d, dtype=np.float64),
+        bounds=np.asarray(bounds, dtype=np.float64),
+        splat_lambda=float(splat_lambda), radius_max=float(radius_max),
+        near=float(near), far=float(far), disc_offsets=offsets, disc_start=start,
+        disc_falloff=falloff,
+    )

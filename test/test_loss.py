@@ -1,0 +1,87 @@
+"""Beta normalisation, masking and the class-pair table."""
+
+import numpy as np
+import pytest
+
+from semcal_ros.labels import CITYSCAPES_ID, INVALID, SKY, palette_array
+from semcal_ros.loss import LabelLoss, LossParams, loss_reference, pair_table
+
+ROAD, BUILDING, VEG = CITYSCAPES_ID["road"], CITYSCAPES_ID["building"], CITYSCAPES_ID["vegetation"]
+
+
+def colour_l2(a, b):
+    pal = palette_array().astype(float) / 255
+    return float(np.sum((pal[a] - pal[b]) ** 2))
+
+
+def test_table_is_colour_distance():
+    t = pair_table("l2")
+    assert t[ROAD, ROAD] == 0
+    assert t[ROAD, BUILDING] == pytest.approx(colour_l2(ROAD, BUILDING))
+    h = pair_table("huber", 0.3)
+    assert h[ROAD, BUILDING] < t[ROAD, BUILDING]  # huber is linear beyond delta
+    assert h[ROAD, ROAD] == 0
+
+
+def test_mean_over_valid_pixels_and_masking():
+    target = np.full((4, 10), ROAD, np.uint8)
+    target[0] = SKY
+    target[1, :5] = INVALID  # ignored in the target
+    rendered = np.full((4, 10), ROAD, np.uint8)
+    rendered[0] = INVALID  # nothing rendered over the sky: valid match, zero cost
+    rendered[3, :2] = BUILDING  # two wrong pixels
+    rendered[2, :4] = INVALID  # holes over non-sky: masked, not counted
+    loss = LabelLoss(target, LossParams())
+    value, coverage = loss.evaluate(rendered)
+    n_valid = 40 - 5 - 4
+    assert value == pytest.approx(2 * colour_l2(BUILDING, ROAD) / n_valid)
+    assert coverage == pytest.approx((25 - 4) / 25)
+    ref, ref_cov = loss_reference(rendered, target, loss.table, LossParams())
+    assert ref == pytest.approx(value)
+    assert ref_cov == pytest.approx(coverage)
+
+
+def test_beta_normalisation_does_not_reward_masking():
+    # the same error rate over fewer valid pixels gives the same loss
+    target = np.full((10, 10), ROAD, np.uint8)
+    rendered = target.copy()
+    rendered[:, 0] = BUILDING
+    full = LabelLoss(target, LossParams())(rendered)
+    holes = rendered.copy()
+    holes[:5, 1:] = INVALID
+    holes[:5, 0] = INVALID
+    assert LabelLoss(target, LossParams())(holes) == pytest.approx(full)
+
+
+def test_rendered_map_over_target_sky_costs():
+    target = np.full((2, 2), SKY, np.uint8)
+    target[1] = ROAD
+    rendered = np.full((2, 2), ROAD, np.uint8)
+    value = LabelLoss(target, LossParams())(rendered)
+    assert value == pytest.approx(2 * colour_l2(ROAD, SKY) / 4)
+
+
+def test_crop_top_and_degenerate_view():
+    target = np.full((10, 4), ROAD, np.uint8)
+    rendered = target.copy()
+    rendered[:5] = BUILDING
+    assert LabelLoss(target, LossParams(crop_top=0.5))(rendered) == 0.0
+    empty = np.full_like(target, INVALID)
+    p = LossParams(min_coverage=0.05, degenerate_loss=7.0)
+    assert LabelLoss(target, p)(empty) == 7.0
+
+
+def test_fast_matches_reference_on_random_images():
+    rng = np.random.default_rng(3)
+    classes = np.array([0, 1, 2, 5, 7, 8, 9, 10, INVALID], np.uint8)
+    target = rng.choice(classes, (60, 80)).astype(np.uint8)
+    rendered = rng.choice(classes, (60, 80)).astype(np.uint8)
+    for kind in ("l2", "huber"):
+        p = LossParams(kind=kind, crop_top=0.1, min_coverage=0.0)
+        loss = LabelLoss(target, p)
+        assert loss(rendered) == pytest.approx(loss_reference(rendered, target, loss.table, p)[0])
+
+
+def test_bad_loss_kind():
+    with pytest.raises(ValueError, match="loss kind"):
+        LossParams(kind="l1")

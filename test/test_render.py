@@ -1,0 +1,78 @@
+"""The two renderer paths agree pixel for pixel; splats, z-buffer and crop behave as specified."""
+
+import numpy as np
+import pytest
+
+from semcal_ros.camera import CameraModel
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.labels import CITYSCAPES_ID, INVALID, KITTI_ID
+from semcal_ros.pose import Pose
+from semcal_ros.render import fast, make_view, prepare_map, reference
+from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world
+
+
+@pytest.fixture(scope="module")
+def world():
+    return street_world(step=0.15)
+
+
+@pytest.mark.parametrize("falloff", [0.0, 0.05])
+@pytest.mark.parametrize("pose", [
+    GROUND_TRUTH,
+    Pose.from_body_rpy_deg([3.0, -2.0, 1.5], [2.0, 5.0, 170.0]),  # low, looking the other way
+    Pose.from_body_rpy_deg([0.0, 0.0, 30.0], [0.0, 89.0, 0.0]),  # straight down from high up
+])
+def test_fast_and_reference_are_identical(world, pose, falloff):
+    cam = CameraModel(960, 600, camera().k, np.array([-0.2, 0.05, 0.002, -0.001, 0.01]))
+    pmap = prepare_map(world, center=pose.translation)
+    view = make_view(cam, pose, pmap.origin, 32.0, 8.0, depth_falloff=falloff)
+    a = reference.render(pmap, view)
+    b = fast.render(pmap, view)
+    assert (a != INVALID).mean() > 0.05  # something was drawn
+    np.testing.assert_array_equal(a, b)
+
+
+def test_identical_with_one_and_two_threads(world):
+    pmap = prepare_map(world, center=GROUND_TRUTH.translation)
+    view = make_view(camera(), GROUND_TRUTH, pmap.origin, 32.0, 8.0)
+    np.testing.assert_array_equal(fast.render_keys(pmap, view, 1), fast.render_keys(pmap, view, 2))
+
+
+def _two_points_cloud(z_near, z_far, lab_near="pole", lab_far="building"):
+    xyz = np.array([[z_near, 0.0, 0.0], [z_far, 0.0, 0.0]])  # on the optical axis of the pose below
+    label = np.array([KITTI_ID[lab_near], KITTI_ID[lab_far]], np.uint16)
+    return LabelledCloud(xyz, label)
+
+
+def test_nearest_point_wins_and_disc_radius_follows_distance():
+    cam = camera(200, 100)
+    pose = Pose.from_body_rpy_deg([0, 0, 0], [0, 0, 0])
+    pmap = prepare_map(_two_points_cloud(4.0, 8.0), center=np.zeros(3))
+    img = reference.render(pmap, make_view(cam, pose, pmap.origin, 16.0, 8.0))
+    centre = (int(round(cam.cy)), int(round(cam.cx)))
+    assert img[centre] == CITYSCAPES_ID["pole"]
+    # radius 16/4 = 4 px for the near pole, 16/8 = 2 px for the far building
+    row = img[centre[0]]
+    pole = np.flatnonzero(row == CITYSCAPES_ID["pole"])
+    assert pole.max() - pole.min() + 1 == 9
+    far_only = prepare_map(_two_points_cloud(8.0, 8.0, "building"), center=np.zeros(3))
+    row2 = reference.render(far_only, make_view(cam, pose, far_only.origin, 16.0, 8.0))[centre[0]]
+    assert (row2 == CITYSCAPES_ID["building"]).sum() == 5
+
+
+def test_dynamic_points_are_removed_and_crop_applies():
+    xyz = np.array([[1.0, 0, 0], [2.0, 0, 0], [500.0, 0, 0]])
+    label = np.array([KITTI_ID["car"], KITTI_ID["road"], KITTI_ID["road"]], np.uint16)
+    pmap = prepare_map(LabelledCloud(xyz, label), center=np.zeros(3), radius=100.0)
+    assert len(pmap) == 1
+    assert pmap.label[0] == CITYSCAPES_ID["road"]
+    with pytest.raises(ValueError, match="no static labelled points"):
+        prepare_map(LabelledCloud(xyz[:1], label[:1]))
+
+
+def test_subset_keeps_spatial_spread(world):
+    pmap = prepare_map(world)
+    sub = pmap.subset(0.125)
+    assert len(sub) == pytest.approx(len(pmap) / 8, rel=0.01)
+    np.testing.assert_allclose(sub.xyz.min(0), pmap.xyz.min(0), atol=1.0)
+    np.testing.assert_allclose(sub.xyz.max(0), pmap.xyz.max(0), atol=1.0)
