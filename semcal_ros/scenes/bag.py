@@ -1,0 +1,160 @@
+"""The scene's raw sensor streams as a rosbag2 (mcap), written with ``rosbags`` (no ROS needed).
+
+Topics: ``/lidar/points`` (PointCloud2: x, y, z, intensity float32 + label uint16, frame
+``lidar``), ``/lidar/odom`` (Odometry of the lidar in ``map``), and the static camera's
+``/camera/image_raw`` (rgb8), ``/camera/labels`` (mono8 trainIds) and ``/camera/camera_info``,
+repeated every ``camera_period`` seconds so a late subscriber still gets them. Messages use the
+Jazzy definitions of rosbags' type store, so the bag's type hashes match a Jazzy system.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from semcal_ros.camera import CameraModel
+
+LIDAR_FRAME = "lidar"
+MAP_FRAME = "map"
+
+#: Point layout on /lidar/points: 18 bytes of fields padded to 20 (4-byte aligned rows).
+POINT_DTYPE = np.dtype({"names": ["x", "y", "z", "intensity", "label"],
+                        "formats": ["<f4", "<f4", "<f4", "<f4", "<u2"],
+                        "offsets": [0, 4, 8, 12, 16], "itemsize": 20})
+
+TOPICS = {
+    "/lidar/points": "sensor_msgs/msg/PointCloud2",
+    "/lidar/odom": "nav_msgs/msg/Odometry",
+    "/camera/image_raw": "sensor_msgs/msg/Image",
+    "/camera/labels": "sensor_msgs/msg/Image",
+    "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+}
+
+
+def typestore():
+    store = getattr(Stores, "ROS2_JAZZY", Stores.ROS2_HUMBLE)
+    return get_typestore(store)
+
+
+@dataclass
+class CameraFrame:
+    """The static camera's messages (one image pair, repeated)."""
+
+    camera: CameraModel
+    rgb: np.ndarray  # (H, W, 3) uint8
+    labels: np.ndarray  # (H, W) uint8 trainIds
+    frame_id: str = "camera_optical"
+
+
+class SceneBagWriter:
+    """Writes scans, odometry and periodic camera messages in time order."""
+
+    def __init__(self, path: str | Path, camera: CameraFrame, camera_period: float = 1.0) -> None:
+        path = Path(path)
+        if path.exists():
+            raise FileExistsError(f"bag output already exists: {path}")
+        self.ts = typestore()
+        self.t = self.ts.types
+        self._writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer.open()
+        self._conn = {topic: self._writer.add_connection(topic, kind, typestore=self.ts)
+                      for topic, kind in TOPICS.items()}
+        self.camera = camera
+        self.camera_period = camera_period
+        self._next_camera: float | None = None
+        self._closed = False
+
+    # -- message builders -------------------------------------------------------------------
+    def _header(self, stamp: float, frame: str):
+        sec = int(np.floor(stamp))
+        nsec = int(round((stamp - sec) * 1e9))
+        if nsec >= 1_000_000_000:
+            sec, nsec = sec + 1, nsec - 1_000_000_000
+        time = self.t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
+        return self.t["std_msgs/msg/Header"](stamp=time, frame_id=frame)
+
+    def _cloud(self, stamp: float, xyz: np.ndarray, intensity: np.ndarray, label: np.ndarray):
+        pts = np.zeros(len(xyz), POINT_DTYPE)
+        pts["x"], pts["y"], pts["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        pts["intensity"], pts["label"] = intensity, label
+        field = self.t["sensor_msgs/msg/PointField"]
+        float32, uint16 = field.FLOAT32, field.UINT16
+        fields = [field(name=n, offset=POINT_DTYPE.fields[n][1],
+                        datatype=uint16 if n == "label" else float32, count=1)
+                  for n in POINT_DTYPE.names]
+        return self.t["sensor_msgs/msg/PointCloud2"](
+            header=self._header(stamp, LIDAR_FRAME), height=1, width=len(pts), fields=fields,
+            is_bigendian=False, point_step=POINT_DTYPE.itemsize,
+            row_step=POINT_DTYPE.itemsize * len(pts),
+            data=np.frombuffer(pts.tobytes(), np.uint8), is_dense=True)
+
+    def _odom(self, stamp: float, translation: np.ndarray, quaternion: np.ndarray):
+        g = "geometry_msgs/msg/"
+        pose = self.t[g + "Pose"](position=self.t[g + "Point"](*map(float, translation)),
+                                  orientation=self.t[g + "Quaternion"](*map(float, quaternion)))
+        zero3 = self.t[g + "Vector3"](0.0, 0.0, 0.0)
+        return self.t["nav_msgs/msg/Odometry"](
+            header=self._header(stamp, MAP_FRAME), child_frame_id=LIDAR_FRAME,
+            pose=self.t[g + "PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+            twist=self.t[g + "TwistWithCovariance"](
+                twist=self.t[g + "Twist"](linear=zero3, angular=zero3), covariance=np.zeros(36)))
+
+    def _image(self, stamp: float, data: np.ndarray, encoding: str):
+        h, w = data.shape[:2]
+        channels = 1 if data.ndim == 2 else data.shape[2]
+        return self.t["sensor_msgs/msg/Image"](
+            header=self._header(stamp, self.camera.frame_id), height=h, width=w,
+            encoding=encoding, is_bigendian=0, step=w * channels,
+            data=np.ascontiguousarray(data, np.uint8).reshape(-1))
+
+    def _camera_info(self, stamp: float):
+        cam = self.camera.camera
+        p = np.zeros((3, 4))
+        p[:, :3] = cam.k
+        roi = self.t["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        return self.t["sensor_msgs/msg/CameraInfo"](
+            header=self._header(stamp, self.camera.frame_id), height=cam.height, width=cam.width,
+            distortion_model="plumb_bob", d=cam.d.astype(np.float64), k=cam.k.ravel(),
+            r=np.eye(3).ravel(), p=p.ravel(), binning_x=0, binning_y=0, roi=roi)
+
+    # -- writing ----------------------------------------------------------------------------
+    def _write(self, topic: str, stamp: float, msg) -> None:
+        raw = self.ts.serialize_cdr(msg, TOPICS[topic])
+        self._writer.write(self._conn[topic], int(round(stamp * 1e9)), raw)
+
+    def _camera_until(self, stamp: float) -> None:
+        if self._next_camera is None:
+            self._next_camera = stamp
+        while self._next_camera <= stamp + 1e-9:
+            t = self._next_camera
+            self._write("/camera/camera_info", t, self._camera_info(t))
+            self._write("/camera/image_raw", t, self._image(t, self.camera.rgb, "rgb8"))
+            self._write("/camera/labels", t, self._image(t, self.camera.labels, "mono8"))
+            self._next_camera = t + self.camera_period
+
+    def add_scan(self, stamp: float, translation: np.ndarray, quaternion: np.ndarray,
+                 xyz: np.ndarray, intensity: np.ndarray, label: np.ndarray) -> None:
+        """A scan in the lidar frame and the lidar's pose (x, y, z; qx, qy, qz, qw) in the map."""
+        self._camera_until(stamp)
+        self._write("/lidar/odom", stamp, self._odom(stamp, translation, quaternion))
+        self._write("/lidar/points", stamp, self._cloud(stamp, xyz, intensity, label))
+
+    def close(self, end_stamp: float | None = None) -> None:
+        """Camera messages up to ``end_stamp``, then finish the bag (metadata.yaml)."""
+        if self._closed:
+            return
+        if end_stamp is not None:
+            self._camera_until(end_stamp)
+        self._closed = True
+        self._writer.close()
+
+    def __enter__(self) -> "SceneBagWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

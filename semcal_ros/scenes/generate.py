@@ -1,0 +1,376 @@
+"""One synthetic scene folder (docs/CONTRACTS.md) from a kind, a seed and a variant.
+
+The world of a (kind, seed) pair is the same in every variant — variants only change what the
+sensors report — so results across variants of one seed compare like with like. Random streams
+are split by purpose for the same reason: adding moving actors must not move a building.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.ndimage import gaussian_filter1d
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
+
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.io.files import write_camera_info, write_label_image, write_pose, write_rgb_image
+from semcal_ros.io.ply import write_ply
+from semcal_ros.labels import CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID, KITTI_ID, SEMANTIC_KITTI, SKY
+from semcal_ros.camera import CameraModel
+from semcal_ros.pose import Pose
+from semcal_ros.scenes import props
+from semcal_ros.scenes.actors import Actor, Polyline, actors_at
+from semcal_ros.scenes.bag import CameraFrame, SceneBagWriter
+from semcal_ros.scenes.labelnoise import add_label_noise
+from semcal_ros.scenes.layouts import KINDS, Layout, build_layout
+from semcal_ros.scenes.sensors import LidarSpec, World, default_camera, pixel_rays, rotate, scan
+from semcal_ros.scenes.shading import shade, to_image
+from semcal_ros.scenes.voxel import voxel_majority
+
+VARIANTS = ("ideal", "noisy_labels", "dynamic", "sparse", "pose_noise")
+GENERATOR_VERSION = 1
+LIDAR_HEIGHT = 3.0  # metres above the road
+
+
+@dataclass(frozen=True)
+class SceneOptions:
+    """How much to simulate. ``lines`` None means the variant's default (128, or 32 for sparse)."""
+
+    scans: int = 200
+    scan_rate_hz: float = 10.0
+    lines: int | None = None
+    horizontal_step_deg: float = 0.2
+    voxel: float = 0.05  # map voxel size, metres
+    scan_crop: float = 50.0  # map keeps scan points at most this far from the sensor (d_max)
+    map_radius: float = 60.0  # ... at most this far (horizontally) from the camera
+    map_view_margin_deg: float = 15.0  # ... within the camera's horizontal view plus this margin
+    supersample: int = 2  # RGB image samples per pixel side
+    camera_period: float = 1.0  # seconds between repeated camera messages in the bag
+    write_bag: bool = True
+    write_scans: bool = True  # scans/*.ply (poses.yaml is always written)
+    moving_cars: int = 3
+    moving_people: int = 4
+    pose_noise_m: float = 0.03  # 1-sigma per axis, pose_noise variant
+    pose_noise_deg: float = 0.2
+    threads: int = 0  # ray-casting threads, 0 = all cores
+    start_stamp: float = 1_700_000_000.0
+
+    def validate(self) -> None:
+        if self.scans < 2:
+            raise ValueError(f"a scene needs at least 2 scans, got {self.scans}")
+        if self.scan_rate_hz <= 0:
+            raise ValueError("scan rate must be positive")
+        if self.lines is not None and not 2 <= self.lines <= 512:
+            raise ValueError(f"lidar lines must be in 2..512, got {self.lines}")
+        if not 0.01 <= self.horizontal_step_deg <= 5.0:
+            raise ValueError("horizontal step must be in 0.01..5 degrees")
+        if self.voxel <= 0 or self.supersample < 1:
+            raise ValueError("voxel size and supersampling must be positive")
+
+
+#: Named sizes of ``semcal scene --size``. ``small`` is the test and demo scene: a shorter drive
+#: centred on the camera's view (about 10 s to generate, a 5 s bag).
+SIZES = {
+    "full": SceneOptions(),
+    "small": SceneOptions(scans=50, supersample=1),
+}
+
+
+@dataclass
+class SceneResult:
+    out: Path
+    summary: dict
+
+
+def _rng(seed: int, kind: str, purpose: str) -> np.random.Generator:
+    purposes = ("layout", "actors", "image_actors", "lidar", "noise", "initial", "shading")
+    return np.random.default_rng([int(seed), KINDS.index(kind), purposes.index(purpose)])
+
+
+class ViewCrop:
+    """The part of the world a map for this camera needs: within ``radius`` (horizontally) of
+    the camera and inside its horizontal field of view widened by ``margin_deg`` on each side
+    (the evaluation's +-5 deg yaw and +-2.5 m starts stay well inside), plus a 10 m disc around
+    the mast. Points are given relative to the camera centre."""
+
+    def __init__(self, camera_pose: Pose, radius: float, margin_deg: float,
+                 camera: CameraModel | None = None) -> None:
+        camera = camera or default_camera()
+        self.radius = radius
+        self.yaw = float(np.radians(camera_pose.body_rpy_deg()[2]))
+        half_fov = np.degrees(np.arctan2(camera.width / 2.0, camera.fx))
+        self.half_angle = float(np.radians(min(180.0, half_fov + margin_deg)))
+
+    def contains(self, rel_xyz: np.ndarray) -> np.ndarray:
+        x, y = rel_xyz[:, 0], rel_xyz[:, 1]
+        r2 = x * x + y * y
+        off = np.abs((np.arctan2(y, x) - self.yaw + np.pi) % (2 * np.pi) - np.pi)
+        return (r2 <= self.radius ** 2) & ((off <= self.half_angle) | (r2 <= 100.0))
+
+
+def kitti_to_train_id() -> np.ndarray:
+    """uint8[65536]: SemanticKITTI id -> Cityscapes trainId (the label alignment, dynamic kept)."""
+    lut = np.full(65536, INVALID, np.uint8)
+    for kitti, city in DEFAULT_ALIGNMENT.items():
+        lut[KITTI_ID[kitti]] = CITYSCAPES_ID[city]
+    return lut
+
+
+def make_actors(layout: Layout, rng: np.random.Generator, cars: int, people: int,
+                moving: bool = True) -> list[Actor]:
+    """Cars on the layout's lanes and people on its pavements (moving-* classes)."""
+    actors = []
+    if layout.lanes:
+        for _ in range(cars):
+            path, speed = layout.lanes[int(rng.integers(len(layout.lanes)))]
+            actors.append(Actor(props.car_mesh(rng, props.MOVING_CAR), path,
+                                speed * rng.uniform(0.8, 1.2), rng.uniform(0, path.length)))
+    if layout.walkways:
+        for _ in range(people):
+            walk = layout.walkways[int(rng.integers(len(layout.walkways)))]
+            # a short stretch of the walkway near the scene centre, walked back and forth
+            s0 = walk.path.closest_arclength(layout.focus) + rng.uniform(-50.0, 50.0)
+            s0 = float(np.clip(s0, 0.0, walk.path.length - 20.0))
+            xy, _ = walk.path.at(np.array([s0, s0 + rng.uniform(15.0, 40.0)]))
+            side = rng.uniform(-1.0, 1.0)
+            normal = np.array([-np.sin(_heading(xy)), np.cos(_heading(xy))])
+            path = Polyline(xy + side * normal)
+            actors.append(Actor(props.person_mesh(rng, props.MOVING_PERSON), path,
+                                rng.uniform(1.0, 1.6), rng.uniform(0, 2 * path.length),
+                                walk.ground, bounce=True))
+    return actors
+
+
+def _heading(xy: np.ndarray) -> float:
+    d = xy[1] - xy[0]
+    return float(np.arctan2(d[1], d[0]))
+
+
+def vehicle_poses(layout: Layout, options: SceneOptions, rng: np.random.Generator
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Times (N,), lidar positions (N, 3) and quaternions (N, 4) along the drive, the window of
+    scans centred on where the path passes the camera's focus."""
+    n = options.scans
+    dt = 1.0 / options.scan_rate_hz
+    times = np.arange(n) * dt
+    travel = layout.drive_speed * times[-1]
+    if travel > layout.drive.length:
+        most = int(layout.drive.length / (layout.drive_speed * dt)) + 1
+        raise ValueError(f"{n} scans do not fit the {layout.kind} drive "
+                         f"({layout.drive.length:.0f} m at {layout.drive_speed:.1f} m/s); "
+                         f"at most {most} at {options.scan_rate_hz:g} Hz")
+    centre = layout.drive.closest_arclength(layout.focus)
+    s0 = float(np.clip(centre - travel / 2, 0.0, layout.drive.length - travel))
+    xy, heading = layout.drive.at(s0 + layout.drive_speed * times)
+    # smooth the heading through polyline corners (a vehicle does not turn instantly)
+    heading = np.unwrap(heading)
+    heading = gaussian_filter1d(heading, sigma=max(0.5, 0.4 / (layout.drive_speed * dt)),
+                                mode="nearest")
+    phase = rng.uniform(0, 2 * np.pi, 2)
+    pitch = np.radians(0.3) * np.sin(2 * np.pi * 0.7 * times + phase[0])
+    roll = np.radians(0.2) * np.sin(2 * np.pi * 0.9 * times + phase[1])
+    positions = np.c_[xy, np.full(n, LIDAR_HEIGHT)]
+    quats = Rotation.from_euler("ZYX", np.c_[heading, pitch, roll]).as_quat()
+    return times, positions, quats
+
+
+def perturb_poses(positions: np.ndarray, quats: np.ndarray, rng: np.random.Generator,
+                  sigma_m: float, sigma_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Localisation error: smooth random offsets (correlated over ~0.3 s) of the given 1-sigma.
+
+    White noise through a unit-sum Gaussian filter loses variance by sum(w^2) ~ 1/(2 sqrt(pi) s);
+    scaling by the inverse keeps the per-scan 1-sigma at the requested value.
+    """
+    sigma = 3.0
+
+    def smooth(shape: tuple[int, int]) -> np.ndarray:
+        noise = gaussian_filter1d(rng.normal(0, 1, shape), sigma=sigma, axis=0, mode="wrap")
+        return noise * np.sqrt(2.0 * np.sqrt(np.pi) * sigma)
+    dt = smooth(positions.shape) * sigma_m
+    dr = Rotation.from_rotvec(smooth(positions.shape) * np.radians(sigma_deg))
+    return positions + dt, (Rotation.from_quat(quats) * dr).as_quat()
+
+
+def camera_images(world: World, layout: Layout, pose: Pose, moving, options: SceneOptions,
+                  noisy: bool, rng_noise: np.random.Generator, rng_shade: np.random.Generator
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Label image (trainIds, sky where nothing is hit) and shaded RGB image of the camera."""
+    camera = default_camera()
+    dirs = pixel_rays(camera, pose)
+    hits = world.cast(pose.translation, dirs, moving)
+    labels = np.where(hits.hit, kitti_to_train_id()[hits.label], SKY).astype(np.uint8)
+    labels = labels.reshape(camera.height, camera.width)
+    if noisy:
+        labels = add_label_noise(labels, rng_noise)
+    s = options.supersample
+    dirs = pixel_rays(camera, pose, s) if s > 1 else dirs
+    hits = world.cast(pose.translation, dirs, moving) if s > 1 else hits
+    azimuth = rng_shade.uniform(0, 2 * np.pi)
+    elevation = np.radians(rng_shade.uniform(35.0, 60.0))
+    sun = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                    np.sin(elevation)])
+    linear = shade(world, pose.translation, dirs, hits, sun, rng_shade, moving)
+    return labels, to_image(linear, camera.width, camera.height, s, rng_shade)
+
+
+def perturbed_initial(truth: Pose, rng: np.random.Generator, metres: float = 1.0,
+                      degrees: float = 2.0) -> Pose:
+    """A demo starting guess: up to ``metres`` per axis and ``degrees`` in pitch and yaw off."""
+    rpy = truth.body_rpy_deg()
+    d_rpy = np.array([0.0, *rng.uniform(-degrees, degrees, 2)])
+    return Pose.from_body_rpy_deg(truth.translation + rng.uniform(-metres, metres, 3), rpy + d_rpy)
+
+
+def _poses_yaml(path: Path, files: list[str], stamps: np.ndarray, positions: np.ndarray,
+                quats: np.ndarray) -> None:
+    scans = [{"file": f, "stamp": float(s), "translation": [float(v) for v in p],
+              "rotation": [float(v) for v in q]}
+             for f, s, p, q in zip(files, stamps, positions, quats)]
+    data = {"frame_id": "map", "child_frame_id": "lidar", "scans": scans}
+    path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=200))
+
+
+def _class_counts(labels: np.ndarray) -> dict[str, int]:
+    ids, counts = np.unique(labels, return_counts=True)
+    return {SEMANTIC_KITTI.get(int(i), str(int(i))): int(c) for i, c in zip(ids, counts)}
+
+
+def prepare_output(out: Path, force: bool) -> None:
+    """An empty output folder; with ``force`` an earlier scene there is replaced."""
+    if out.exists() and any(out.iterdir()):
+        if not force:
+            raise FileExistsError(f"output folder is not empty: {out} (use --force to replace "
+                                  "a scene)")
+        if not (out / "scene.yaml").is_file():
+            raise ValueError(f"refusing to replace {out}: it is not a scene folder (no scene.yaml)")
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
+                   variant: str = "ideal", options: SceneOptions = SceneOptions(),
+                   force: bool = False, progress: bool = True) -> SceneResult:
+    """Generate the scene folder ``out``; returns its path and the scene.yaml summary."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown scene kind '{kind}' (choose from {', '.join(KINDS)})")
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant '{variant}' (choose from {', '.join(VARIANTS)})")
+    options.validate()
+    out = Path(out)
+    prepare_output(out, force)
+    t_start = time.perf_counter()
+    timing: dict[str, float] = {}
+
+    layout = build_layout(kind, _rng(seed, kind, "layout"))
+    world = World(layout.static, options.threads)
+    lines = options.lines or (32 if variant == "sparse" else 128)
+    spec = LidarSpec(lines=lines, horizontal_step_deg=options.horizontal_step_deg)
+    dynamic = variant == "dynamic"
+    n_cars = options.moving_cars * (3 if dynamic else 1)
+    n_people = options.moving_people * (3 if dynamic else 1)
+    scan_actors = make_actors(layout, _rng(seed, kind, "actors"), n_cars, n_people)
+    times, positions, quats = vehicle_poses(layout, options, _rng(seed, kind, "lidar"))
+    t_camera = float(times[len(times) // 2])
+    image_actors = (make_actors(layout, _rng(seed, kind, "image_actors"), n_cars, n_people)
+                    if dynamic else scan_actors)
+    timing["layout"] = time.perf_counter() - t_start
+
+    # camera
+    t0 = time.perf_counter()
+    camera = default_camera()
+    truth = Pose.from_body_rpy_deg(layout.camera_position,
+                                   [0.0, layout.camera_pitch_deg, layout.camera_yaw_deg])
+    labels, rgb = camera_images(world, layout, truth, actors_at(image_actors, t_camera), options,
+                                variant == "noisy_labels", _rng(seed, kind, "noise"),
+                                _rng(seed, kind, "shading"))
+    write_label_image(out / "labels.png", labels)
+    write_rgb_image(out / "image.png", rgb)
+    write_camera_info(out / "camera_info.yaml", camera)
+    write_pose(out / "ground_truth.yaml", truth)
+    write_pose(out / "initial.yaml", perturbed_initial(truth, _rng(seed, kind, "initial")))
+    timing["camera"] = time.perf_counter() - t0
+
+    # lidar drive
+    t0 = time.perf_counter()
+    stamps = options.start_stamp + times
+    reported_pos, reported_q = positions, quats
+    if variant == "pose_noise":
+        reported_pos, reported_q = perturb_poses(positions, quats, _rng(seed, kind, "noise"),
+                                                 options.pose_noise_m, options.pose_noise_deg)
+    scan_dir = out / "scans"
+    scan_dir.mkdir()
+    bag = None
+    if options.write_bag:
+        bag = SceneBagWriter(out / "bag", CameraFrame(camera, rgb, labels), options.camera_period)
+    rng_lidar = _rng(seed, kind, "lidar")
+    view_crop = ViewCrop(truth, options.map_radius, options.map_view_margin_deg)
+    directions = spec.directions()
+    map_xyz, map_labels, files = [], [], []
+    scan_points = 0
+    try:
+        for i in tqdm(range(options.scans), desc=f"{kind}/{variant} scans", unit="scan",
+                      disable=not progress):
+            rot = Rotation.from_quat(quats[i]).as_matrix()
+            xyz, intensity, label = scan(world, spec, rot, positions[i],
+                                         actors_at(scan_actors, float(times[i])), rng_lidar,
+                                         directions)
+            files.append(f"{i:06d}.ply")
+            if options.write_scans:
+                write_ply(scan_dir / files[-1], LabelledCloud(xyz, label, {"intensity": intensity}))
+            if bag is not None:
+                bag.add_scan(float(stamps[i]), reported_pos[i], reported_q[i], xyz, intensity,
+                             label)
+            near = np.einsum("ij,ij->i", xyz, xyz) <= options.scan_crop ** 2
+            world_xyz = rotate(xyz[near], rot) + (positions[i] - truth.translation).astype(np.float32)
+            inside = view_crop.contains(world_xyz)
+            map_xyz.append(world_xyz[inside])
+            map_labels.append(label[near][inside])
+            scan_points += len(xyz)
+    finally:
+        if bag is not None:
+            bag.close(float(stamps[-1]))
+    _poses_yaml(scan_dir / "poses.yaml", files, stamps, reported_pos, reported_q)
+    if variant == "pose_noise":
+        _poses_yaml(scan_dir / "poses_true.yaml", files, stamps, positions, quats)
+    timing["lidar"] = time.perf_counter() - t0
+
+    # map from the true poses
+    t0 = time.perf_counter()
+    xyz, label = voxel_majority(np.concatenate(map_xyz), np.concatenate(map_labels), options.voxel)
+    del map_xyz, map_labels
+    map_cloud = LabelledCloud(xyz + truth.translation, label)
+    write_ply(out / "map.ply", map_cloud)
+    timing["map"] = time.perf_counter() - t0
+    timing["total"] = time.perf_counter() - t_start
+
+    image_ids, image_counts = np.unique(labels, return_counts=True)
+    summary = {
+        "kind": kind, "seed": int(seed), "variant": variant,
+        "generator_version": GENERATOR_VERSION,
+        "options": {k: v for k, v in asdict(replace(options, lines=lines)).items()},
+        "lidar": {"lines": lines, "fov_deg": [spec.fov_down_deg, spec.fov_up_deg],
+                  "horizontal_step_deg": spec.horizontal_step_deg, "max_range": spec.max_range,
+                  "range_noise": spec.range_noise, "height": LIDAR_HEIGHT,
+                  "speed": float(layout.drive_speed)},
+        "camera": {"height_above_ground": float(layout.camera_position[2] - layout.camera_ground),
+                   "pitch_deg": float(layout.camera_pitch_deg),
+                   "yaw_deg": float(layout.camera_yaw_deg), "stamp": float(stamps[0] + t_camera)},
+        "counts": {"scans": options.scans, "scan_points": int(scan_points),
+                   "map_points": len(map_cloud), "mesh_triangles": len(layout.static),
+                   "moving_actors_scans": len(scan_actors),
+                   "moving_actors_image": len(image_actors)},
+        "map_classes": _class_counts(map_cloud.label),
+        "image_class_fractions": {
+            (("sky" if i == SKY else next((n for n, v in CITYSCAPES_ID.items() if v == i), "ignore"))):
+                round(float(c) / labels.size, 4) for i, c in zip(image_ids, image_counts)},
+        "seconds": {k: round(v, 2) for k, v in timing.items()},
+    }
+    (out / "scene.yaml").write_text(yaml.safe_dump(summary, sort_keys=False))
+    return SceneResult(out, summary)
+

@@ -1,0 +1,287 @@
+"""Synthetic scenes: contract formats, internal consistency, bag round trip, variants."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from plyfile import PlyData
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from semcal_ros.camera import CameraModel
+from semcal_ros.io.files import read_camera_info, read_label_image, read_pose, read_rgb_image
+from semcal_ros.io.ply import read_ply
+from semcal_ros.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, LabelMapping
+from semcal_ros.pose import Pose, rotation_error_deg, translation_error
+from semcal_ros.scenes.layouts import KINDS, build_layout
+from semcal_ros.scenes.voxel import voxel_majority
+
+#: Options that make a scene cheap where only its variant's effect is tested.
+TINY = dict(scans=6, horizontal_step_deg=1.0, write_bag=False)
+
+
+def zbuffer_labels(points: np.ndarray, labels: np.ndarray, camera: CameraModel, pose: Pose,
+                   voxel: float = 0.05, max_half: int = 4) -> np.ndarray:
+    """Nearest-point label per pixel; each point a square about one voxel wide on screen."""
+    pc = pose.transform_points(points)
+    uv, ok = camera.project(pc)
+    pc, uv, labels = pc[ok], uv[ok], labels[ok]
+    half = np.clip(np.floor(0.5 * camera.fx * voxel / pc[:, 2]), 0, max_half).astype(int)
+    empty = np.iinfo(np.uint64).max
+    key = (np.minimum(pc[:, 2] * 1000, 2 ** 24 - 1).astype(np.uint64) << np.uint64(8)) \
+        | labels.astype(np.uint64)
+    buf = np.full(camera.width * camera.height, empty, np.uint64)
+    iu, iv = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+    for h in np.unique(half):
+        sel = half == h
+        for du in range(-h, h + 1):
+            for dv in range(-h, h + 1):
+                u, v = iu[sel] + du, iv[sel] + dv
+                inside = (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+                np.minimum.at(buf, v[inside] * camera.width + u[inside], key[sel][inside])
+    out = np.where(buf == empty, INVALID, buf & np.uint64(255)).astype(np.uint8)
+    return out.reshape(camera.height, camera.width)
+
+
+def agreement(scene: Path, pose: Pose) -> float:
+    """Fraction of pixels where the rendered map's class equals the label image's class."""
+    mapping = LabelMapping()
+    cloud = read_ply(scene / "map.ply")
+    aligned = mapping.map_lidar(cloud.label)
+    keep = aligned != INVALID
+    rendered = zbuffer_labels(cloud.xyz[keep], aligned[keep],
+                              read_camera_info(scene / "camera_info.yaml"), pose)
+    target = mapping.map_image(read_label_image(scene / "labels.png"))
+    valid = (rendered != INVALID) & (target != INVALID)
+    assert valid.mean() > 0.3, "the map covers too little of the image to compare"
+    return float((rendered[valid] == target[valid]).mean())
+
+
+def read_poses(path: Path) -> dict:
+    return yaml.safe_load(path.read_text())
+
+
+# ------------------------------------------------------------------------------------------
+def test_scene_folder_has_the_contract_files_and_formats(demo_scene: Path):
+    ply = PlyData.read(str(demo_scene / "map.ply"))
+    assert not ply.text and ply.byte_order == "<"
+    props = {p.name: p.val_dtype for p in ply["vertex"].properties}
+    assert props == {"x": "f4", "y": "f4", "z": "f4", "label": "u2"}
+    meta = yaml.safe_load((demo_scene / "scene.yaml").read_text())
+    assert 500_000 <= meta["counts"]["map_points"] <= 3_000_000
+    assert meta["kind"] == "junction" and meta["variant"] == "ideal"
+
+    labels = read_label_image(demo_scene / "labels.png")
+    rgb = read_rgb_image(demo_scene / "image.png")
+    assert labels.shape == (600, 960) and rgb.shape == (600, 960, 3)
+    assert set(np.unique(labels)) <= set(CITYSCAPES)
+    for name in ("road", "sidewalk", "building", "vegetation", "pole", "traffic sign"):
+        assert (labels == CITYSCAPES_ID[name]).mean() > 0.0005, name
+    camera = read_camera_info(demo_scene / "camera_info.yaml")
+    assert (camera.width, camera.height) == (960, 600)
+    assert np.degrees(2 * np.arctan(camera.width / 2 / camera.fx)) == pytest.approx(90.0)
+
+    truth = read_pose(demo_scene / "ground_truth.yaml")
+    roll, pitch, _ = truth.body_rpy_deg()
+    assert roll == pytest.approx(0.0, abs=1e-9) and 5.0 < pitch < 35.0
+    assert 5.0 <= truth.translation[2] - 0.15 <= 8.0
+    initial = read_pose(demo_scene / "initial.yaml")
+    assert 0.05 < translation_error(initial, truth) <= np.sqrt(3.0)
+    assert 0.01 < rotation_error_deg(initial, truth) <= 3.0
+
+    poses = read_poses(demo_scene / "scans" / "poses.yaml")
+    assert (poses["frame_id"], poses["child_frame_id"]) == ("map", "lidar")
+    assert len(poses["scans"]) == meta["counts"]["scans"] == 50
+    stamps = [s["stamp"] for s in poses["scans"]]
+    assert np.all(np.diff(stamps) > 0)
+    first = poses["scans"][0]
+    scan = PlyData.read(str(demo_scene / "scans" / first["file"]))
+    assert {p.name: p.val_dtype for p in scan["vertex"].properties} == {
+        "x": "f4", "y": "f4", "z": "f4", "intensity": "f4", "label": "u2"}
+    assert len(first["translation"]) == 3 and len(first["rotation"]) == 4
+    assert not (demo_scene / "scans" / "poses_true.yaml").exists()
+
+
+def test_map_agrees_with_label_image_at_ground_truth_and_not_off_it(demo_scene: Path):
+    truth = read_pose(demo_scene / "ground_truth.yaml")
+    at_truth = agreement(demo_scene, truth)
+    assert at_truth > 0.95
+    rpy = truth.body_rpy_deg()
+    off = Pose.from_body_rpy_deg(truth.translation + [0.35, -0.35, 0.0], rpy + [0.0, 0.7, 0.7])
+    at_off = agreement(demo_scene, off)  # 0.5 m and 1 deg away
+    assert 1.0 - at_off > 3.0 * (1.0 - at_truth)
+
+
+def test_scans_placed_with_their_poses_lie_on_the_map(demo_scene: Path):
+    cloud = read_ply(demo_scene / "map.ply")
+    tree = cKDTree(cloud.xyz)
+    poses = read_poses(demo_scene / "scans" / "poses.yaml")["scans"]
+    entry = poses[len(poses) // 2]
+    scan = read_ply(demo_scene / "scans" / entry["file"])
+    assert scan.extra["intensity"].min() >= 0.0 and scan.extra["intensity"].max() <= 1.0
+    world = Rotation.from_quat(entry["rotation"]).apply(scan.xyz) + entry["translation"]
+    dist, idx = tree.query(world, distance_upper_bound=1.0)
+    covered = np.isfinite(dist)
+    assert covered.mean() > 0.3  # the map is cropped to the camera's view
+    assert np.median(dist[covered]) < 0.04
+    static = covered & (scan.label < 252)
+    assert (cloud.label[idx[static]] == scan.label[static]).mean() > 0.9
+
+
+def test_bag_reads_back_with_rosbags_and_decodes_with_rclpy(demo_scene: Path):
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Reader
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+    types = {"sensor_msgs/msg/PointCloud2": PointCloud2, "nav_msgs/msg/Odometry": Odometry,
+             "sensor_msgs/msg/Image": Image, "sensor_msgs/msg/CameraInfo": CameraInfo}
+    poses = read_poses(demo_scene / "scans" / "poses.yaml")["scans"]
+    messages: dict[str, list] = {}
+    info = yaml.safe_load((demo_scene / "bag" / "metadata.yaml").read_text())
+    assert info["rosbag2_bagfile_information"]["storage_identifier"] == "mcap"
+    with Reader(demo_scene / "bag") as reader:
+        for conn, stamp, raw in reader.messages():
+            msg = deserialize_message(raw, types[conn.msgtype])
+            header_ns = msg.header.stamp.sec * 10 ** 9 + msg.header.stamp.nanosec
+            assert abs(header_ns - stamp) < 1000
+            messages.setdefault(conn.topic, []).append(msg)
+    assert len(messages["/lidar/points"]) == len(messages["/lidar/odom"]) == len(poses)
+    assert len(messages["/camera/image_raw"]) == len(messages["/camera/labels"]) >= 4
+    assert len(messages["/camera/camera_info"]) >= 4
+
+    cloud = messages["/lidar/points"][7]
+    assert cloud.header.frame_id == "lidar"
+    assert [(f.name, f.datatype) for f in cloud.fields] == [
+        ("x", 7), ("y", 7), ("z", 7), ("intensity", 7), ("label", 4)]
+    fmt = np.dtype({"names": [f.name for f in cloud.fields],
+                    "formats": ["<f4"] * 4 + ["<u2"],
+                    "offsets": [f.offset for f in cloud.fields], "itemsize": cloud.point_step})
+    points = np.frombuffer(bytes(cloud.data), fmt)
+    scan = read_ply(demo_scene / "scans" / poses[7]["file"])
+    assert len(points) == cloud.width == len(scan)
+    np.testing.assert_array_equal(points["x"], scan.xyz[:, 0].astype(np.float32))
+    np.testing.assert_array_equal(points["label"], scan.label)
+
+    odom = messages["/lidar/odom"][7]
+    assert (odom.header.frame_id, odom.child_frame_id) == ("map", "lidar")
+    p = odom.pose.pose
+    np.testing.assert_allclose([p.position.x, p.position.y, p.position.z],
+                               poses[7]["translation"], atol=1e-9)
+    np.testing.assert_allclose([p.orientation.x, p.orientation.y, p.orientation.z,
+                                p.orientation.w], poses[7]["rotation"], atol=1e-9)
+
+    image, labels = messages["/camera/image_raw"][-1], messages["/camera/labels"][-1]
+    assert (image.encoding, labels.encoding) == ("rgb8", "mono8")
+    np.testing.assert_array_equal(np.frombuffer(bytes(image.data), np.uint8).reshape(600, 960, 3),
+                                  read_rgb_image(demo_scene / "image.png"))
+    np.testing.assert_array_equal(np.frombuffer(bytes(labels.data), np.uint8).reshape(600, 960),
+                                  read_label_image(demo_scene / "labels.png"))
+    info = messages["/camera/camera_info"][0]
+    np.testing.assert_allclose(np.reshape(info.k, (3, 3)),
+                               read_camera_info(demo_scene / "camera_info.yaml").k)
+    cam_stamps = [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+                  for m in messages["/camera/image_raw"]]
+    assert np.all(np.diff(cam_stamps) > 0.5)
+
+
+# ------------------------------------------------------------------------------------------
+def test_variants_change_only_what_they_should(scene_factory):
+    ideal = scene_factory("junction", 3, "ideal", **TINY)
+    noisy = scene_factory("junction", 3, "noisy_labels", **TINY)
+    moved = scene_factory("junction", 3, "pose_noise", **TINY)
+    sparse = scene_factory("junction", 3, "sparse", **TINY)
+
+    a, b = read_label_image(ideal / "labels.png"), read_label_image(noisy / "labels.png")
+    changed = (a != b).mean()
+    assert 0.005 < changed < 0.15
+    np.testing.assert_array_equal(read_rgb_image(ideal / "image.png"),
+                                  read_rgb_image(noisy / "image.png"))
+
+    # pose noise: poses.yaml perturbed by cm / tenths of a degree, the map from the true poses
+    np.testing.assert_array_equal(read_ply(moved / "map.ply").xyz, read_ply(ideal / "map.ply").xyz)
+    true = read_poses(moved / "scans" / "poses_true.yaml")["scans"]
+    given = read_poses(moved / "scans" / "poses.yaml")["scans"]
+    assert true == read_poses(ideal / "scans" / "poses.yaml")["scans"]
+    dt = np.array([np.linalg.norm(np.subtract(g["translation"], t["translation"]))
+                   for g, t in zip(given, true)])
+    dr = np.array([np.degrees((Rotation.from_quat(g["rotation"]).inv()
+                               * Rotation.from_quat(t["rotation"])).magnitude())
+                   for g, t in zip(given, true)])
+    assert 0.005 < dt.mean() < 0.15 and 0.02 < dr.mean() < 1.0
+
+    n_ideal = len(read_ply(ideal / "scans" / "000003.ply"))
+    n_sparse = len(read_ply(sparse / "scans" / "000003.ply"))
+    assert yaml.safe_load((sparse / "scene.yaml").read_text())["lidar"]["lines"] == 32
+    assert 0.15 * n_ideal < n_sparse < 0.4 * n_ideal  # 32 of 128 lines
+
+
+def test_dynamic_variant_has_movers_in_scans_and_other_ones_in_the_image(scene_factory):
+    ideal = scene_factory("arterial", 1, "ideal", **TINY)
+    dynamic = scene_factory("arterial", 1, "dynamic", **TINY)
+    moving = (KITTI_ID["moving-car"], KITTI_ID["moving-person"])
+
+    def movers(scene: Path) -> int:
+        return sum(int(np.isin(read_ply(p).label, moving).sum())
+                   for p in sorted((scene / "scans").glob("*.ply")))
+
+    assert movers(dynamic) > movers(ideal) > 0
+    car, person = CITYSCAPES_ID["car"], CITYSCAPES_ID["person"]
+    a, b = read_label_image(ideal / "labels.png"), read_label_image(dynamic / "labels.png")
+    dyn_a, dyn_b = np.isin(a, [car, person]), np.isin(b, [car, person])
+    differ = a != b
+    # other movers in the image, the same world around them (parked cars are in both)
+    assert differ.sum() > 500
+    assert np.all(dyn_a[differ] | dyn_b[differ])
+    assert yaml.safe_load((dynamic / "scene.yaml").read_text())["counts"][
+        "moving_actors_image"] > 0
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_layouts_carry_every_roadside_class(kind):
+    layout = build_layout(kind, np.random.default_rng(5))
+    present = set(np.unique(layout.static.labels).tolist())
+    wanted = {"road", "terrain", "lane-marking", "pole", "traffic-sign", "fence", "trunk",
+              "vegetation"}
+    if kind != "highway":
+        wanted |= {"sidewalk", "building", "car"}
+    assert {KITTI_ID[n] for n in wanted} <= present
+    assert np.all(np.isfinite(layout.static.vertices))
+    assert layout.drive.length > 200.0
+
+
+def test_voxel_majority_keeps_the_most_frequent_class_and_its_centroid():
+    xyz = np.array([[0.01, 0.01, 0.01], [0.02, 0.02, 0.02], [0.03, 0.01, 0.04],
+                    [0.04, 0.04, 0.04], [0.31, 0.0, 0.0], [0.32, 0.0, 0.0]])
+    labels = np.array([50, 40, 50, 40, 70, 80], np.uint16)
+    # voxel 0.1: voxel A has 50, 40, 50, 40 (tie 2:2 -> smaller id 40), voxel B 70 vs 80 (tie)
+    out, lab = voxel_majority(xyz, labels, 0.1)
+    order = np.argsort(out[:, 0])
+    np.testing.assert_array_equal(lab[order], [40, 70])
+    np.testing.assert_allclose(out[order][0], [0.03, 0.03, 0.03])
+    out, lab = voxel_majority(xyz, np.array([50, 50, 50, 40, 80, 80], np.uint16), 0.1)
+    order = np.argsort(out[:, 0])
+    np.testing.assert_array_equal(lab[order], [50, 80])
+    np.testing.assert_allclose(out[order][0], [0.02, 0.04 / 3, 0.07 / 3])
+
+
+def test_cli_generates_a_scene_and_rejects_bad_input(tmp_path: Path):
+    semcal = Path(sys.executable).with_name("semcal")
+    out = tmp_path / "hw"
+    done = subprocess.run([str(semcal), "scene", "--kind", "highway", "--seed", "2", "--size",
+                           "small", "--scans", "3", "--lines", "8", "--no-bag", "--quiet",
+                           "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert len(list((out / "scans").glob("*.ply"))) == 3 and (out / "map.ply").is_file()
+    again = subprocess.run([str(semcal), "scene", "--kind", "highway", "--out", str(out)],
+                           capture_output=True, text=True, timeout=60)
+    assert again.returncode == 1 and "not empty" in again.stderr
+    bad = subprocess.run([str(semcal), "scene", "--kind", "roundabout", "--out",
+                          str(tmp_path / "x")], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 1 and "unknown scene kind 'roundabout'" in bad.stderr
