@@ -163,7 +163,7 @@ class Registration:
         st = self.stages[stage]
         rp = self.params.render
         view = make_view(st.camera, pose, st.pmap.origin, st.splat_lambda, st.radius_max,
-                         rp.near, rp.far, st.bounds, rp.depth_falloff)
+                         rp.near, rp.far, st.bounds, rp.depth_falloff, rp.core_fraction)
         return render(st.pmap, view)
 
     def loss(self, pose: Pose, stage: int = -1) -> float:

@@ -17,6 +17,7 @@ class RenderParams:
     splat_lambda: float = 32.0  # disc radius in px = splat_lambda / distance (full resolution)
     radius_max: float = 8.0  # px, full resolution
     depth_falloff: float = 0.05  # depth factor at a disc's rim: nearest centre wins within a surface
+    core_fraction: float = 1.0  # share of the disc radius that carries the label (rim: depth only)
     near: float = 0.5  # m
     far: float = 150.0  # m
     crop_radius: float = 120.0  # m around the initial camera position; 0 keeps the whole map

@@ -16,16 +16,16 @@ def world():
     return street_world(step=0.15)
 
 
-@pytest.mark.parametrize("falloff", [0.0, 0.05])
+@pytest.mark.parametrize("falloff,core", [(0.0, 1.0), (0.3, 0.6)])
 @pytest.mark.parametrize("pose", [
     GROUND_TRUTH,
     Pose.from_body_rpy_deg([3.0, -2.0, 1.5], [2.0, 5.0, 170.0]),  # low, looking the other way
     Pose.from_body_rpy_deg([0.0, 0.0, 30.0], [0.0, 89.0, 0.0]),  # straight down from high up
 ])
-def test_fast_and_reference_are_identical(world, pose, falloff):
+def test_fast_and_reference_are_identical(world, pose, falloff, core):
     cam = CameraModel(960, 600, camera().k, np.array([-0.2, 0.05, 0.002, -0.001, 0.01]))
     pmap = prepare_map(world, center=pose.translation)
-    view = make_view(cam, pose, pmap.origin, 32.0, 8.0, depth_falloff=falloff)
+    view = make_view(cam, pose, pmap.origin, 32.0, 8.0, depth_falloff=falloff, core_fraction=core)
     a = reference.render(pmap, view)
     b = fast.render(pmap, view)
     assert (a != INVALID).mean() > 0.05  # something was drawn
@@ -76,3 +76,15 @@ def test_subset_keeps_spatial_spread(world):
     assert len(sub) == pytest.approx(len(pmap) / 8, rel=0.01)
     np.testing.assert_allclose(sub.xyz.min(0), pmap.xyz.min(0), atol=1.0)
     np.testing.assert_allclose(sub.xyz.max(0), pmap.xyz.max(0), atol=1.0)
+
+
+def test_disc_rim_occludes_without_label():
+    cam = camera(200, 100)
+    pose = Pose.from_body_rpy_deg([0, 0, 0], [0, 0, 0])
+    pmap = prepare_map(_two_points_cloud(4.0, 8.0), center=np.zeros(3))
+    row = reference.render(pmap, make_view(cam, pose, pmap.origin, 16.0, 8.0,
+                                           core_fraction=0.5))[int(round(cam.cy))]
+    pole = np.flatnonzero(row == CITYSCAPES_ID["pole"])
+    assert pole.max() - pole.min() + 1 == 5  # core radius 2 of the 4 px disc
+    assert (row == CITYSCAPES_ID["building"]).sum() == 0  # the rim still hides the building
+    assert (row == INVALID).sum() == len(row) - 5

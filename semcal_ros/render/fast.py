@@ -16,6 +16,7 @@ import numba
 import numpy as np
 
 from semcal_ros.camera import distort
+from semcal_ros.labels import INVALID
 from semcal_ros.render.prepare import CHUNK, PreparedMap
 from semcal_ros.render.reference import keys_to_labels
 from semcal_ros.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
@@ -47,8 +48,8 @@ def _chunk_visible(c, rad, r, t, near, far, bounds):
 
 @numba.njit(cache=True, parallel=True, nogil=True)
 def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, bounds,
-                 splat_lambda, radius_max, near, far, offsets, start, falloff, width, height,
-                 n_threads):
+                 splat_lambda, radius_max, near, far, offsets, start, falloff, core, width,
+                 height, n_threads):
     n = xyz.shape[0]
     n_chunks = chunk_center.shape[0]
     zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
@@ -88,7 +89,7 @@ def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, bou
                     if uu >= 0 and uu < width and vv >= 0 and vv < height:
                         idx = vv * width + uu
                         depth_mm = min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM)
-                        key = np.uint32((depth_mm << 8) | lab)
+                        key = np.uint32((depth_mm << 8) | (lab if core[o] else INVALID))
                         if key < zb[idx]:
                             zb[idx] = key
     # merge the per-thread z-buffers serially: a second parallel region costs more than it saves
@@ -107,7 +108,7 @@ def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> 
         pmap.xyz, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
         view.translation, view.intrinsics, view.distortion, view.bounds, view.splat_lambda,
         view.radius_max, view.near, view.far, view.disc_offsets, view.disc_start,
-        view.disc_falloff, view.width,
+        view.disc_falloff, view.disc_core, view.width,
         view.height, threads)
     return zbuf.reshape(view.height, view.width)
 

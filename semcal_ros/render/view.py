@@ -32,9 +32,11 @@ class View:
     disc_offsets: np.ndarray  # (K, 2) int32 du, dv of all discs, concatenated
     disc_start: np.ndarray  # (S + 2,) int32: disc s = offsets[start[s]:start[s+1]]
     disc_falloff: np.ndarray  # (K,) float64: 1 + depth_falloff * (offset / radius)^2
+    disc_core: np.ndarray  # (K,) uint8: 1 where the offset carries the label, 0 depth only
 
 
-def disc_table(radius_max: float, depth_falloff: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def disc_table(radius_max: float, depth_falloff: float,
+               core_fraction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pixel offsets of filled discs of radius s / RADIUS_STEPS, s = 0..S (s=0 is one pixel).
 
     Each offset carries a depth factor that grows towards the disc's rim. Among points of one
@@ -42,9 +44,14 @@ def disc_table(radius_max: float, depth_falloff: float) -> tuple[np.ndarray, np.
     nearest point: plain nearest-wins discs let every region grow by most of a radius into the
     farther region beside it, which biases the pose (the camera drifts up and back). Across real
     occlusions (depth gaps larger than the falloff) the nearer surface still wins.
+
+    Only the disc's core (radius ``core_fraction * r``) carries the label; the rim occludes what
+    lies behind but renders as "no label". At a silhouette (a pole before a wall, a roof against
+    the sky) the rim is where a disc overshoots the true outline, so it is masked instead of
+    counted as the wrong class.
     """
     steps = int(np.floor(radius_max * RADIUS_STEPS))
-    offsets, falloff, start = [], [], [0]
+    offsets, falloff, core, start = [], [], [], [0]
     for s in range(steps + 1):
         r = s / RADIUS_STEPS
         span = int(np.floor(r))
@@ -53,25 +60,28 @@ def disc_table(radius_max: float, depth_falloff: float) -> tuple[np.ndarray, np.
         inside = rho2 <= r * r
         offsets.append(np.stack([du[inside], dv[inside]], axis=1))
         falloff.append(1.0 + depth_falloff * rho2[inside] / max(r * r, 1.0))
+        core.append(rho2[inside] <= max((core_fraction * r) ** 2, 0.0))
         start.append(start[-1] + int(inside.sum()))
     return (np.ascontiguousarray(np.concatenate(offsets), dtype=np.int32),
             np.asarray(start, dtype=np.int32),
-            np.ascontiguousarray(np.concatenate(falloff), dtype=np.float64))
+            np.ascontiguousarray(np.concatenate(falloff), dtype=np.float64),
+            np.ascontiguousarray(np.concatenate(core), dtype=np.uint8))
 
 
-_DISC_CACHE: dict[tuple[float, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+_DISC_CACHE: dict[tuple[float, float, float], tuple[np.ndarray, ...]] = {}
 
 
 def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda: float,
               radius_max: float, near: float = 0.3, far: float = 200.0,
-              bounds: np.ndarray | None = None, depth_falloff: float = 0.0) -> View:
+              bounds: np.ndarray | None = None, depth_falloff: float = 0.0,
+              core_fraction: float = 1.0) -> View:
     """A view of the map (whose local origin is ``origin``) from ``pose``."""
     r, t = pose.world_to_camera()
     t_local = t + r @ np.asarray(origin, float)
-    key = (float(radius_max), float(depth_falloff))
+    key = (float(radius_max), float(depth_falloff), float(core_fraction))
     if key not in _DISC_CACHE:
         _DISC_CACHE[key] = disc_table(*key)
-    offsets, start, falloff = _DISC_CACHE[key]
+    offsets, start, falloff, core = _DISC_CACHE[key]
     if bounds is None:
         bounds = np.asarray(camera.normalized_bounds(margin_px=radius_max))
     return View(
@@ -82,5 +92,5 @@ def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda:
         bounds=np.asarray(bounds, dtype=np.float64),
         splat_lambda=float(splat_lambda), radius_max=float(radius_max),
         near=float(near), far=float(far), disc_offsets=offsets, disc_start=start,
-        disc_falloff=falloff,
+        disc_falloff=falloff, disc_core=core,
     )
