@@ -1,0 +1,383 @@
+"""Scans and poses into one labelled map: the paper's recursive grouped multiway ICP.
+
+One engine serves both doors. :class:`StreamingMapBuilder` takes time-ordered scans one at a time
+(the live node); :func:`build_map` feeds it a list (the command line). Scans enter level 0 of a
+stack; whenever a level holds three clouds, they are registered together (multiway ICP), merged,
+voxel-downsampled and pushed one level up, like carries in a base-3 counter. Work is therefore
+done as groups fill, every level stays voxel-downsampled, and at most two clouds wait on each of
+the log3(N) levels, so memory follows the mapped area, not the number of scans. ``finish``
+registers whatever is left, lowest level first, until one cloud remains.
+
+Poses are of the lidar in the map frame (or of the vehicle, with ``lidar_extrinsic`` the lidar in
+the vehicle frame). Per scan the builder keeps only its prior pose and its accumulated correction,
+so the refined pose of scan s is ``correction[s] @ prior[s]``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.labels import LabelMapping
+from semcal_ros.mapping import filters
+from semcal_ros.mapping.pose_stream import PoseStream, as_matrix
+from semcal_ros.mapping.registration import (
+    PairResult, RegistrationCloud, RegistrationParams, merge_registration, register_group,
+    registration_cloud, rotation_deg)
+
+GROUP_SIZE = 3  # the paper's groups of three neighbouring scans
+
+
+@dataclass
+class MapBuildParams:
+    """Map building parameters (``config/map_builder.yaml`` style, dotted for nested)."""
+
+    d_max: float = 60.0  # drop points farther from the sensor, metres
+    d_min: float = 0.0  # drop points closer (e.g. hits on the vehicle), metres
+    voxel: float = 0.1  # map voxel size, applied to every scan and at every merge, metres
+    icp: bool = True  # False: accumulate with the given poses only
+    remove_dynamic: bool = True
+    corridor: float = 0.0  # > 0: remove dynamic classes only this close to the path (metres)
+    crop_radius: float = 0.0  # > 0: keep points within this horizontal radius of crop_center
+    crop_center: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    crop_margin: float = 5.0  # scans are cropped this much wider (ICP may move them)
+    max_scans: int = 0  # > 0: the map is full after this many scans
+    pose_tolerance: float = 0.02  # seconds a scan may lie beyond the pose stream
+    registration: RegistrationParams = field(default_factory=RegistrationParams)
+
+    def __post_init__(self) -> None:
+        if not self.d_max > 0 or self.d_min < 0 or self.d_min >= self.d_max:
+            raise ValueError(f"need 0 <= d_min < d_max, got d_min={self.d_min}, "
+                             f"d_max={self.d_max}")
+        if not self.voxel > 0:
+            raise ValueError(f"voxel size must be positive, got {self.voxel}")
+        if self.corridor < 0 or self.crop_radius < 0 or self.max_scans < 0:
+            raise ValueError("corridor, crop_radius and max_scans must not be negative")
+        if len(tuple(self.crop_center)) != 3:
+            raise ValueError("crop_center must be [x, y, z]")
+
+
+class ScanRejected(ValueError):
+    """A scan the builder refused; ``kind`` says why. The map built so far is untouched."""
+
+    def __init__(self, message: str, kind: str) -> None:
+        super().__init__(message)
+        self.kind = kind  # fields | pose | order | empty | full | load
+
+
+@dataclass(frozen=True)
+class ScanReport:
+    """What happened to one accepted scan."""
+
+    index: int  # position among accepted scans
+    points_in: int
+    points_kept: int  # after range filter, voxel grid, dynamic removal and crop
+    merges: int  # groups registered because this scan completed them
+    seconds: float
+
+
+@dataclass
+class MapBuildResult:
+    """The map and what building it did."""
+
+    map: LabelledCloud
+    scan_ids: list[str]
+    stamps: np.ndarray  # (N,) of accepted scans
+    prior_poses: np.ndarray  # (N, 4, 4) lidar in map, as given
+    corrections: np.ndarray  # (N, 4, 4) applied on the left: refined = correction @ prior
+    skipped: list[tuple[str, str]]  # (scan id, reason)
+    timings: dict[str, float]
+    points_in: int
+    points_kept: int
+    pairs: list[PairResult]
+
+    @property
+    def refined_poses(self) -> np.ndarray:
+        return self.corrections @ self.prior_poses
+
+    def pose_changes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per scan: how far ICP moved the lidar (metres) and turned it (degrees)."""
+        refined = self.refined_poses
+        shift = np.linalg.norm(refined[:, :3, 3] - self.prior_poses[:, :3, 3], axis=1)
+        angle = np.array([rotation_deg(c) for c in self.corrections])
+        return shift, angle
+
+
+@dataclass
+class _Node:
+    """A cloud waiting in the stack: its map-frame points and the scans it holds."""
+
+    cloud: LabelledCloud
+    scans: np.ndarray  # indices of accepted scans
+    reg: RegistrationCloud | None = None  # what ICP works on (None with ICP off)
+
+
+class StreamingMapBuilder:
+    """Scans in time order, one at a time; see the module docstring for the scheme."""
+
+    def __init__(self, params: MapBuildParams | None = None,
+                 lidar_extrinsic: np.ndarray | None = None,
+                 mapping: LabelMapping | None = None,
+                 dynamic_ids: np.ndarray | None = None) -> None:
+        self.params = params or MapBuildParams()
+        self.extrinsic = np.eye(4) if lidar_extrinsic is None else as_matrix(
+            lidar_extrinsic, "lidar extrinsic")
+        if dynamic_ids is None:
+            dynamic_ids = (mapping or LabelMapping()).dynamic_kitti_ids()
+        self.dynamic_ids = np.asarray(dynamic_ids, dtype=np.uint16)
+        self.poses = PoseStream(tolerance=self.params.pose_tolerance)
+        self.reset()
+
+    # --- state ---------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget all scans, poses and the map."""
+        self._levels: list[list[_Node]] = []
+        self._ids: list[str] = []
+        self._stamps: list[float] = []
+        self._priors: list[np.ndarray] = []
+        self._corrections: list[np.ndarray] = []
+        self._pairs: list[PairResult] = []
+        self.skipped: list[tuple[str, str]] = []
+        self.timings = {"filter": 0.0, "icp": 0.0, "merge": 0.0}
+        self.points_in = 0
+        self.points_kept = 0
+        self.poses.clear()
+
+    @property
+    def scan_count(self) -> int:
+        return len(self._ids)
+
+    @property
+    def is_full(self) -> bool:
+        return 0 < self.params.max_scans <= self.scan_count
+
+    def path_xy(self) -> np.ndarray:
+        """Horizontal lidar positions of the accepted scans (the vehicle path)."""
+        if not self._priors:
+            return np.zeros((0, 2))
+        return np.array([p[:2, 3] for p in self._priors])
+
+    # --- input ---------------------------------------------------------------------------
+    def add_pose(self, stamp: float, pose: Any) -> None:
+        """A pose of the vehicle (or lidar) for scans that come without one."""
+        self.poses.add(stamp, pose)
+
+    def add_scan(self, cloud: Any, pose: Any = None, stamp: float = 0.0,
+                 scan_id: str | None = None) -> ScanReport:
+        """Add one scan (lidar frame); ``pose`` None looks it up in the pose stream at ``stamp``.
+
+        Raises :class:`ScanRejected` with a message naming the problem (no x/y/z, no pose for its
+        time, out of time order, empty after filtering, map full); nothing is changed then.
+        """
+        t0 = time.perf_counter()
+        scan_id = str(len(self._ids) + len(self.skipped)) if scan_id is None else str(scan_id)
+        try:
+            return self._add(cloud, pose, float(stamp), scan_id, t0)
+        except ScanRejected as exc:
+            self.skipped.append((scan_id, str(exc)))
+            raise
+
+    def _add(self, cloud: Any, pose: Any, stamp: float, scan_id: str, t0: float) -> ScanReport:
+        p = self.params
+        if self.is_full:
+            raise ScanRejected(f"scan {scan_id}: map is full ({p.max_scans} scans)", "full")
+        if self._stamps and stamp < self._stamps[-1]:
+            raise ScanRejected(f"scan {scan_id} at {stamp:.6f} s is older than the previous "
+                               f"scan ({self._stamps[-1]:.6f} s); scans must be in time order",
+                               "order")
+        try:
+            scan = filters.as_scan_cloud(cloud, f"scan {scan_id}")
+        except ValueError as exc:
+            raise ScanRejected(str(exc), "fields") from None
+        try:
+            vehicle = self.poses.at(stamp) if pose is None else as_matrix(pose)
+        except ValueError as exc:
+            raise ScanRejected(f"scan {scan_id}: {exc}", "pose") from None
+        lidar = vehicle @ self.extrinsic
+        kept = self._filter_scan(scan, lidar)
+        if len(kept) == 0:
+            raise ScanRejected(f"scan {scan_id}: no points left after filtering ({len(scan)} in, "
+                               f"d_max {p.d_max} m"
+                               + (f", crop {p.crop_radius} m" if p.crop_radius > 0 else "") + ")",
+                               "empty")
+        index = len(self._ids)
+        self._ids.append(scan_id)
+        self._stamps.append(stamp)
+        self._priors.append(lidar)
+        self._corrections.append(np.eye(4))
+        self.points_in += len(scan)
+        self.points_kept += len(kept)
+        reg = (registration_cloud(kept.xyz, lidar[:3, 3], p.registration) if p.icp else None)
+        self.timings["filter"] += time.perf_counter() - t0
+        merges = self._push(_Node(kept, np.array([index]), reg), 0)
+        return ScanReport(index, len(scan), len(kept), merges, time.perf_counter() - t0)
+
+    def _filter_scan(self, scan: LabelledCloud, lidar_pose: np.ndarray) -> LabelledCloud:
+        p = self.params
+        cloud = filters.range_filter(LabelledCloud(scan.xyz, scan.label), p.d_max, p.d_min)
+        cloud = filters.voxel_downsample(filters.transform(cloud, lidar_pose), p.voxel)
+        if cloud.label is None:
+            cloud = LabelledCloud(cloud.xyz, np.full(len(cloud), filters.UNLABELED, np.uint16))
+        if p.remove_dynamic:
+            path = np.vstack([self.path_xy(), lidar_pose[None, :2, 3]])
+            cloud = self._remove_dynamic(cloud, path)
+        if p.crop_radius > 0:
+            cloud = filters.crop_radius(cloud, np.asarray(p.crop_center),
+                                        p.crop_radius + p.crop_margin)
+        return cloud
+
+    def _remove_dynamic(self, cloud: LabelledCloud, path_xy: np.ndarray) -> LabelledCloud:
+        corridor = self.params.corridor if self.params.corridor > 0 else None
+        return filters.remove_dynamic(cloud, self.dynamic_ids, path_xy, corridor)
+
+    # --- the stack -----------------------------------------------------------------------
+    def _push(self, node: _Node, level: int) -> int:
+        merges = 0
+        while True:
+            while len(self._levels) <= level:
+                self._levels.append([])
+            self._levels[level].append(node)
+            if len(self._levels[level]) < GROUP_SIZE:  # >= after a failed merge: retried
+                return merges
+            node, updates = self._merge(self._levels[level])  # may raise: nothing changed yet
+            self._commit(updates)
+            self._levels[level] = []
+            merges += 1
+            level += 1
+
+    def _commit(self, updates: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        for scans, correction in updates:
+            for s in scans:
+                self._corrections[s] = correction @ self._corrections[s]
+
+    def _merge(self, group: list[_Node]) -> tuple[_Node, list[tuple[np.ndarray, np.ndarray]]]:
+        """Register a time-ordered group (multiway ICP), merge it, voxel-downsample it.
+
+        Returns the merged node and the corrections to commit for its scans; the builder's state
+        is only changed by the caller, so a failure here loses nothing.
+        """
+        p = self.params
+        t0 = time.perf_counter()
+        corrections = [np.eye(4)] * len(group)
+        weights = [len(n.scans) for n in group]
+        reg = None
+        if p.icp and all(n.reg is not None for n in group):
+            result = register_group([n.reg for n in group], weights, p.registration)
+            corrections = result.corrections
+            self._pairs.extend(result.pairs)
+            reg = merge_registration([n.reg for n in group], corrections, weights,
+                                     p.registration)
+        t1 = time.perf_counter()
+        parts, updates = [], []
+        for node, c in zip(group, corrections):
+            moved = not np.allclose(c, np.eye(4), atol=1e-12)
+            parts.append(filters.transform(node.cloud, c) if moved else node.cloud)
+            if moved:
+                updates.append((node.scans, c))
+        cloud = filters.voxel_downsample(filters.concatenate(parts), p.voxel)
+        if p.remove_dynamic and p.corridor > 0:
+            cloud = self._remove_dynamic(cloud, self.path_xy())
+        self.timings["icp"] += t1 - t0
+        self.timings["merge"] += time.perf_counter() - t1
+        return _Node(cloud, np.concatenate([n.scans for n in group]), reg), updates
+
+    def _final_filters(self, cloud: LabelledCloud) -> LabelledCloud:
+        p = self.params
+        if p.remove_dynamic and p.corridor > 0:
+            cloud = self._remove_dynamic(cloud, self.path_xy())
+        if p.crop_radius > 0:
+            cloud = filters.crop_radius(cloud, np.asarray(p.crop_center), p.crop_radius)
+        return cloud
+
+    def current_map(self) -> LabelledCloud:
+        """The map of all scans so far, without registering the groups not yet complete.
+
+        Cheap and non-destructive (for publishing while driving); :meth:`finish` registers the
+        rest.
+        """
+        nodes = [n for level in self._levels for n in level]
+        if not nodes:
+            return LabelledCloud(np.zeros((0, 3)), np.zeros(0, np.uint16))
+        if len(nodes) == 1:
+            cloud = nodes[0].cloud
+        else:
+            cloud = filters.voxel_downsample(filters.concatenate([n.cloud for n in nodes]),
+                                             self.params.voxel)
+        return self._final_filters(cloud)
+
+    def finish(self) -> MapBuildResult:
+        """Register what waits on the levels until one cloud remains; the result so far.
+
+        Scans may still be added afterwards; they join as the latest part of the map.
+        """
+        carry: _Node | None = None
+        updates: list[tuple[np.ndarray, np.ndarray]] = []
+        for level in range(len(self._levels)):
+            items = self._levels[level] + ([carry] if carry is not None else [])
+            if len(items) > 1:
+                carry, done = self._merge(items)
+                updates += done
+            elif items:
+                carry = items[0]
+        if carry is not None:  # only now change the state: a failed merge above loses nothing
+            self._commit(updates)
+            self._levels = [[] for _ in self._levels[:-1]] + [[carry]]
+        return self.result()
+
+    def result(self) -> MapBuildResult:
+        n = len(self._ids)
+        return MapBuildResult(
+            map=self.current_map(), scan_ids=list(self._ids), stamps=np.array(self._stamps),
+            prior_poses=np.array(self._priors).reshape(n, 4, 4),
+            corrections=np.array(self._corrections).reshape(n, 4, 4),
+            skipped=list(self.skipped), timings=dict(self.timings), points_in=self.points_in,
+            points_kept=self.points_kept, pairs=list(self._pairs))
+
+
+@dataclass
+class ScanInput:
+    """One scan for :func:`build_map`: the cloud (or a loader, so scans are read one by one)."""
+
+    cloud: LabelledCloud | Callable[[], Any]
+    pose: np.ndarray
+    stamp: float
+    scan_id: str = ""
+
+
+def build_map(scans: Iterable[ScanInput], params: MapBuildParams | None = None,
+              lidar_extrinsic: np.ndarray | None = None, mapping: LabelMapping | None = None,
+              progress: bool = False) -> MapBuildResult:
+    """Build a map from scans (sorted by time here); bad scans are skipped and reported."""
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    items = sorted(scans, key=lambda s: s.stamp)
+    builder = StreamingMapBuilder(params, lidar_extrinsic, mapping)
+    load = 0.0
+    bar = tqdm(items, desc="scans", unit="scan", disable=not progress, leave=False)
+    for i, item in enumerate(bar):
+        scan_id = item.scan_id or str(i)
+        tl = time.perf_counter()
+        try:
+            cloud = item.cloud() if callable(item.cloud) else item.cloud
+        except (OSError, ValueError) as exc:
+            builder.skipped.append((scan_id, f"scan {scan_id}: {exc}"))
+            continue
+        finally:
+            load += time.perf_counter() - tl
+        try:
+            builder.add_scan(cloud, item.pose, item.stamp, scan_id)
+        except ScanRejected:
+            pass  # recorded in builder.skipped
+        bar.set_postfix(kept=builder.points_kept, skipped=len(builder.skipped))
+    bar.close()
+    tf = time.perf_counter()
+    result = builder.finish()
+    result.timings["load"] = load
+    result.timings["finish"] = time.perf_counter() - tf
+    result.timings["total"] = time.perf_counter() - t0
+    return result

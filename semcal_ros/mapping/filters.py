@@ -1,0 +1,188 @@
+"""Per-point filters of the map builder: validity, range, voxel grid, dynamic classes, crop.
+
+Each takes and returns a :class:`~semcal_ros.cloud.LabelledCloud`, so the builder composes them
+and tests can check each alone.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from semcal_ros.cloud import LabelledCloud
+
+#: SemanticKITTI id 0, "unlabeled": loses every voxel vote against a real class.
+UNLABELED = 0
+
+
+def as_scan_cloud(data: Any, what: str = "scan") -> LabelledCloud:
+    """A scan as a LabelledCloud from a LabelledCloud, a structured array or a dict of fields.
+
+    Live scans arrive as structured arrays (PointCloud2 fields) whose layout depends on the
+    driver; this is the one place that checks they carry x, y and z, so a bad scan fails with a
+    message that names the missing field rather than a ``KeyError`` deep inside registration.
+    """
+    if isinstance(data, LabelledCloud):
+        return data
+    if isinstance(data, np.ndarray) and data.dtype.names:
+        names = data.dtype.names
+        fields: Mapping[str, np.ndarray] = {n: data[n] for n in names}
+    elif isinstance(data, Mapping):
+        names = tuple(data.keys())
+        fields = data
+    else:
+        raise ValueError(f"{what}: expected a LabelledCloud, a structured array or a dict of "
+                         f"fields, got {type(data).__name__}")
+    missing = [n for n in ("x", "y", "z") if n not in fields]
+    if missing:
+        raise ValueError(f"{what} has no {', '.join(missing)} field "
+                         f"(fields: {', '.join(names) or 'none'})")
+    xyz = np.stack([np.asarray(fields[n], dtype=np.float64).reshape(-1) for n in "xyz"], axis=1)
+    label = None
+    if "label" in fields:
+        label = np.asarray(fields["label"]).reshape(-1).astype(np.uint32) & 0xFFFF
+        label = label.astype(np.uint16)
+    extra = {}
+    if "intensity" in fields:
+        extra["intensity"] = np.asarray(fields["intensity"], dtype=np.float32).reshape(-1)
+    return LabelledCloud(xyz, label, extra)
+
+
+def range_filter(cloud: LabelledCloud, d_max: float, d_min: float = 0.0) -> LabelledCloud:
+    """Finite points with d_min <= distance from the sensor (lidar frame origin) <= d_max.
+
+    Far points are dropped before anything else (the paper's d_max, 50-75 m): a small heading
+    error moves them by more than the voxel size, so they blur the map more than they fill it.
+    """
+    xyz = cloud.xyz
+    d2 = np.einsum("ij,ij->i", xyz, xyz)
+    keep = np.isfinite(d2) & (d2 <= d_max * d_max) & (d2 >= d_min * d_min)
+    return cloud if keep.all() else cloud.select(keep)
+
+
+def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
+    """One point per occupied voxel, with the voxel's majority label.
+
+    The point is the centroid of the majority class's points in the voxel, so class borders stay
+    sharp and each point lies on a surface of its class. Done in numpy because Open3D's
+    ``voxel_down_sample`` averages every attribute, which turns label ids into meaningless means.
+    ``unlabeled`` (0) only wins a voxel in which no point has a class, so unlabelled scans (KITTI
+    has labels for some scans only) fill gaps without overwriting classes; other ties go to the
+    larger id. Unlabelled clouds get plain centroids. Float extra fields (intensity, normal
+    components) are averaged over the same points as the centroid; other extras are dropped.
+    """
+    if voxel <= 0:
+        raise ValueError(f"voxel size must be positive, got {voxel}")
+    xyz = cloud.xyz
+    if len(xyz) == 0:
+        return LabelledCloud(np.zeros((0, 3)), None if cloud.label is None
+                             else np.zeros(0, np.uint16))
+    cells = np.floor(xyz / voxel).astype(np.int64)
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    if cloud.label is None:
+        classes, class_index = np.zeros(1, np.int64), np.zeros(len(xyz), np.int64)
+    else:
+        classes, class_index = np.unique(cloud.label, return_inverse=True)
+    n_classes = len(classes)
+    if float(span[0]) * float(span[1]) * float(span[2]) * n_classes >= 2.0 ** 62:
+        raise ValueError(f"voxel grid too large ({span.tolist()} cells of {voxel} m); "
+                         "points far apart or a tiny voxel size")
+    key = ((cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]) * n_classes
+    groups, inverse, counts = np.unique(key + class_index, return_inverse=True,
+                                        return_counts=True)
+    group_voxel = groups // n_classes
+    group_class = groups % n_classes
+    # rank within a voxel: labelled classes first, then votes, then the larger id
+    score = counts + (classes[group_class] != UNLABELED) * (len(xyz) + 1)
+    order = np.lexsort((group_class, score, group_voxel))
+    best = order[np.flatnonzero(np.diff(group_voxel[order], append=-1))]
+    sums = np.stack([np.bincount(inverse, weights=xyz[:, i], minlength=len(groups))[best]
+                     for i in range(3)], axis=1)
+    points = sums / counts[best, None]
+    extra = {name: (np.bincount(inverse, weights=values, minlength=len(groups))[best]
+                    / counts[best]).astype(values.dtype)
+             for name, values in cloud.extra.items()
+             if values.ndim == 1 and np.issubdtype(values.dtype, np.floating)}
+    label = None if cloud.label is None else classes[group_class[best]].astype(np.uint16)
+    return LabelledCloud(points, label, extra)
+
+
+def path_distance_xy(points_xy: np.ndarray, path_xy: np.ndarray, step: float = 0.25) -> np.ndarray:
+    """Horizontal distance of points to the polyline through ``path_xy`` (within step / 2)."""
+    path_xy = np.asarray(path_xy, float).reshape(-1, 2)
+    if len(path_xy) == 0:
+        return np.full(len(points_xy), np.inf)
+    samples = [path_xy[:1]]
+    for a, b in zip(path_xy[:-1], path_xy[1:]):
+        k = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+        samples.append(a + (b - a) * (np.arange(1, k + 1)[:, None] / k))
+    dist, _ = cKDTree(np.concatenate(samples)).query(points_xy, workers=1)
+    return dist
+
+
+def remove_dynamic(cloud: LabelledCloud, dynamic_ids: np.ndarray,
+                   path_xy: np.ndarray | None = None, corridor: float | None = None
+                   ) -> LabelledCloud:
+    """Drop points of dynamic classes; with ``corridor``, only within that distance of the path.
+
+    The corridor keeps parked cars (the paper's KITTI maps): a car beside the road is as static
+    as a wall for the minutes of a recording, and it is in the camera image too.
+    """
+    if cloud.label is None or len(cloud) == 0 or len(dynamic_ids) == 0:
+        return cloud
+    dynamic = np.isin(cloud.label, dynamic_ids)
+    if not dynamic.any():
+        return cloud
+    if corridor is not None:
+        if path_xy is None:
+            raise ValueError("dynamic-class removal in a corridor needs the vehicle path")
+        idx = np.flatnonzero(dynamic)
+        near = path_distance_xy(cloud.xyz[idx, :2], path_xy) <= corridor
+        dynamic[idx[~near]] = False
+    return cloud.select(~dynamic)
+
+
+def crop_radius(cloud: LabelledCloud, center: np.ndarray, radius: float) -> LabelledCloud:
+    """Points within ``radius`` of ``center``, measured horizontally (x, y).
+
+    Horizontal, so a crop around a camera keeps whole building facades and trees instead of
+    cutting their tops off where a sphere would.
+    """
+    c = np.asarray(center, float).reshape(-1)[:2]
+    d = cloud.xyz[:, :2] - c
+    keep = np.einsum("ij,ij->i", d, d) <= radius * radius
+    return cloud if keep.all() else cloud.select(keep)
+
+
+def apply_rigid(xyz: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """``xyz @ R.T + t`` computed column by column.
+
+    A (N, 3) x (3, 3) product goes through BLAS, whose threads spin against the other processes
+    on a shared 2-core machine: measured 110 ms for 170k points, against 1.5 ms this way.
+    """
+    r, t = matrix[:3, :3], matrix[:3, 3]
+    x, y, z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    out = np.empty((len(xyz), 3))
+    for k in range(3):
+        out[:, k] = x * r[k, 0] + y * r[k, 1] + z * r[k, 2] + t[k]
+    return out
+
+
+def transform(cloud: LabelledCloud, matrix: np.ndarray) -> LabelledCloud:
+    """The cloud with its points moved by a 4x4 rigid transform (labels and extras kept)."""
+    return LabelledCloud(apply_rigid(cloud.xyz, matrix), cloud.label, cloud.extra)
+
+
+def concatenate(clouds: list[LabelledCloud]) -> LabelledCloud:
+    """One cloud from several; if any part has labels, parts without get ``unlabeled`` (0)."""
+    if not clouds:
+        return LabelledCloud(np.zeros((0, 3)), np.zeros(0, np.uint16))
+    xyz = np.concatenate([c.xyz for c in clouds])
+    if all(c.label is None for c in clouds):
+        return LabelledCloud(xyz)
+    label = np.concatenate([c.label if c.label is not None
+                            else np.full(len(c), UNLABELED, np.uint16) for c in clouds])
+    return LabelledCloud(xyz, label.astype(np.uint16))

@@ -1,0 +1,308 @@
+"""Map building: filters, pose stream, grouped multiway ICP, the streaming builder, the command."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mapping_world import BUILDING, CAR, ROAD, drive, make_world, scan_from
+from scipy.spatial.transform import Rotation
+
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.io import kitti
+from semcal_ros.io.ply import read_ply
+from semcal_ros.labels import LabelMapping
+from semcal_ros.mapping import (
+    MapBuildParams, ScanInput, ScanRejected, StreamingMapBuilder, build_map)
+from semcal_ros.mapping import evaluation, filters
+from semcal_ros.mapping.pose_stream import PoseNotCovered, PoseStream
+from semcal_ros.mapping.registration import (
+    RegistrationParams, anchor, pairwise_icp, registration_cloud, rotation_deg)
+
+KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_odometry_00"
+needs_kitti = pytest.mark.skipif(not KITTI.is_dir(), reason=f"real KITTI data absent ({KITTI})")
+
+
+# --- filters -------------------------------------------------------------------------------
+
+def test_scan_without_xyz_is_named():
+    arr = np.zeros(5, dtype=[("x", "f4"), ("y", "f4"), ("intensity", "f4")])
+    with pytest.raises(ValueError, match=r"scan 7 has no z field \(fields: x, y, intensity\)"):
+        filters.as_scan_cloud(arr, "scan 7")
+    arr = np.zeros(2, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("label", "u4")])
+    arr["label"] = [40 | (5 << 16), 50]
+    cloud = filters.as_scan_cloud(arr)
+    assert cloud.label.dtype == np.uint16 and cloud.label.tolist() == [40, 50]
+    with pytest.raises(ValueError, match="expected a LabelledCloud"):
+        filters.as_scan_cloud([1, 2, 3])
+
+
+def test_range_filter_drops_invalid_and_far_points():
+    xyz = np.array([[1.0, 0, 0], [np.nan, 0, 0], [np.inf, 0, 0], [70.0, 0, 0], [0, 59.9, 0],
+                    [0.2, 0, 0]])
+    cloud = filters.range_filter(LabelledCloud(xyz, np.arange(6, dtype=np.uint16)), 60.0, 0.5)
+    assert cloud.label.tolist() == [0, 4]
+
+
+def test_voxel_downsample_majority_label():
+    xyz = np.array([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3], [0.9, 0.9, 0.9],
+                    [1.5, 0.5, 0.5], [1.6, 0.5, 0.5], [1.7, 0.5, 0.5],
+                    [2.5, 0.5, 0.5], [2.6, 0.5, 0.5]])
+    label = np.array([ROAD, BUILDING, BUILDING, ROAD, 0, 0, CAR, ROAD, BUILDING], np.uint16)
+    out = filters.voxel_downsample(LabelledCloud(xyz, label), 1.0)
+    assert out.label.tolist() == [BUILDING, CAR, BUILDING]  # majority; labelled beats 0; tie
+    np.testing.assert_allclose(out.xyz[0], [0.25, 0.25, 0.25])  # centroid of the winners only
+    np.testing.assert_allclose(out.xyz[1], [1.7, 0.5, 0.5])
+    plain = filters.voxel_downsample(LabelledCloud(xyz[:4]), 1.0)
+    assert plain.label is None
+    np.testing.assert_allclose(plain.xyz, [[0.375, 0.375, 0.375]])
+    with pytest.raises(ValueError, match="voxel size must be positive"):
+        filters.voxel_downsample(LabelledCloud(xyz), 0.0)
+
+
+def test_dynamic_removal_in_corridor_keeps_parked_cars():
+    xyz = np.array([[5.0, 0.5, 0.5], [5.0, 6.0, 0.5], [5.0, 6.0, 3.0], [20.0, -0.5, 0.5]])
+    label = np.array([CAR, CAR, BUILDING, 252], np.uint16)  # 252 = moving-car
+    cloud = LabelledCloud(xyz, label)
+    ids = LabelMapping().dynamic_kitti_ids()
+    path = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    kept = filters.remove_dynamic(cloud, ids, path, corridor=2.0)
+    assert kept.label.tolist() == [CAR, BUILDING]  # the car 6 m beside the path stays
+    assert filters.remove_dynamic(cloud, ids).label.tolist() == [BUILDING]
+    with pytest.raises(ValueError, match="needs the vehicle path"):
+        filters.remove_dynamic(cloud, ids, None, corridor=2.0)
+
+
+def test_crop_is_horizontal():
+    xyz = np.array([[3.0, 4.0, 50.0], [3.0, 4.1, 0.0], [0.0, 0.0, -9.0]])
+    kept = filters.crop_radius(LabelledCloud(xyz), np.array([0.0, 0.0, 0.0]), 5.0)
+    np.testing.assert_allclose(kept.xyz, xyz[[0, 2]])
+
+
+# --- poses ---------------------------------------------------------------------------------
+
+def _pose(x: float, yaw_deg: float) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
+    out[0, 3] = x
+    return out
+
+
+def test_pose_stream_interpolates_and_refuses_uncovered_times():
+    stream = PoseStream(tolerance=0.01)
+    stream.add(1.0, _pose(0.0, 0.0))
+    stream.add(2.0, _pose(2.0, 20.0))
+    mid = stream.at(1.25)
+    np.testing.assert_allclose(mid[0, 3], 0.5)
+    assert rotation_deg(mid) == pytest.approx(5.0)
+    np.testing.assert_allclose(stream.at(2.005), _pose(2.0, 20.0))  # within tolerance
+    with pytest.raises(PoseNotCovered, match=r"scan at 2\.500000 s \(poses cover 1\.000000"):
+        stream.at(2.5)
+    with pytest.raises(ValueError, match="older than the previous"):
+        stream.add(1.5, _pose(1.0, 0.0))
+    with pytest.raises(ValueError, match="not a rotation"):
+        stream.add(3.0, np.diag([1.0, 1.0, -1.0, 1.0]))
+
+
+def test_evaluation_helpers():
+    poses = drive(5)
+    noisy = evaluation.perturb_poses(poses, 0.3, 1.0, seed=3)
+    t, r = evaluation.pose_errors(noisy, poses)
+    np.testing.assert_allclose(t, 0.3, atol=1e-9)
+    np.testing.assert_allclose(r, 1.0, atol=1e-6)
+    shifted = np.array([_pose(1.0, 2.0) @ p for p in poses])  # one common motion
+    t, r = evaluation.pose_errors(evaluation.remove_common_transform(shifted, poses), poses)
+    assert t.max() < 1e-9 and r.max() < 1e-6
+
+
+def test_anchor_keeps_the_weighted_mean_at_identity():
+    corrections = [_pose(0.3, 1.0), _pose(-0.1, -0.5), _pose(0.2, 0.2)]
+    anchored = anchor(corrections, np.array([1.0, 1.0, 2.0]), np.array([10.0, 5.0, 0.0]))
+    rel = [a @ np.linalg.inv(c) for a, c in zip(anchored, corrections)]
+    np.testing.assert_allclose(rel[0], rel[1], atol=1e-12)  # one common transform removed
+    shift = np.eye(4)
+    shift[:3, 3] = [-10.0, -5.0, 0.0]
+    local = [shift @ a @ np.linalg.inv(shift) for a in anchored]
+    mean_t = np.average([m[:3, 3] for m in local], axis=0, weights=[1, 1, 2])
+    np.testing.assert_allclose(mean_t, 0.0, atol=1e-12)
+
+
+# --- registration --------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def world():
+    return make_world(length=12.0, seed=0)
+
+
+def test_pairwise_icp_recovers_a_known_offset(world):
+    poses = drive(2, step=1.5)
+    scans = [filters.transform(scan_from(world, p, i), p) for i, p in enumerate(poses)]
+    error = _pose(0.25, 0.8)
+    error[:3, :3] = Rotation.from_euler("zyx", [0.8, -0.4, 0.3], degrees=True).as_matrix()
+    error[1:3, 3] = [-0.15, 0.1]
+    params = RegistrationParams()
+    target = registration_cloud(scans[0].xyz, poses[0][:3, 3], params)
+    moved = filters.transform(scans[1], error)
+    source = registration_cloud(moved.xyz, error[:3, 3] + poses[1][:3, 3], params)
+    result = pairwise_icp(source, target, params)
+    assert result.accepted and result.fitness > 0.5
+    residual = result.transformation @ error
+    assert np.linalg.norm(residual[:3, 3]) < 0.01
+    assert rotation_deg(residual) < 0.05
+
+
+def test_build_map_refines_noisy_poses(world):
+    truth = drive(9, step=1.0, seed=1)
+    scans = [scan_from(world, p, 10 + i) for i, p in enumerate(truth)]
+    noisy = evaluation.perturb_poses(truth, 0.3, 1.0, seed=0)
+    result = build_map([ScanInput(s, p, 0.1 * i, f"s{i}") for i, (s, p) in
+                        enumerate(zip(scans, noisy))], MapBuildParams(voxel=0.1))
+    assert not result.skipped and all(p.accepted for p in result.pairs)
+    aligned = evaluation.remove_common_transform(result.refined_poses, truth)
+    t, r = evaluation.pose_errors(aligned, truth)
+    assert t.max() < 0.03 and r.max() < 0.1, (t, r)
+    before_t, _ = evaluation.pose_errors(evaluation.remove_common_transform(noisy, truth), truth)
+    assert np.median(before_t) > 0.2
+    shift, angle = result.pose_changes()
+    assert np.median(shift) > 0.1 and np.median(angle) > 0.5  # ICP really moved the scans
+    # dynamic classes are gone, the rest of the world's classes remain
+    assert CAR not in result.map.label and {ROAD, BUILDING} <= set(result.map.label.tolist())
+    assert {"filter", "icp", "merge", "load", "total"} <= set(result.timings)
+
+
+# --- streaming builder ---------------------------------------------------------------------
+
+def test_streaming_rejects_bad_scans_without_losing_anything(world):
+    truth = drive(8, step=1.0, seed=2)
+    builder = StreamingMapBuilder(MapBuildParams(icp=False, d_max=40.0, max_scans=6))
+    for i in range(5):
+        builder.add_pose(float(i), truth[i])
+    for i in range(4):
+        report = builder.add_scan(scan_from(world, truth[i], i), stamp=float(i))
+        assert report.index == i and report.points_kept > 0
+    assert builder.scan_count == 4
+    before = builder.current_map()
+    no_z = np.zeros(10, dtype=[("x", "f4"), ("y", "f4")])
+    far = LabelledCloud(np.array([[100.0, 0.0, 0.0], [0.0, 80.0, 1.0]]))
+    cases = [
+        (lambda: builder.add_scan(no_z, stamp=4.0), "fields", "no z field"),
+        (lambda: builder.add_scan(scan_from(world, truth[5], 5), stamp=5.5), "pose",
+         r"no pose covers the scan at 5\.500000 s"),
+        (lambda: builder.add_scan(far, stamp=4.0), "empty", "no points left after filtering"),
+        (lambda: builder.add_scan(scan_from(world, truth[2], 2), stamp=2.5), "order",
+         "time order"),
+    ]
+    for call, kind, message in cases:
+        with pytest.raises(ScanRejected, match=message) as info:
+            call()
+        assert info.value.kind == kind
+    assert builder.scan_count == 4 and len(builder.skipped) == 4
+    after = builder.current_map()
+    np.testing.assert_array_equal(after.xyz, before.xyz)
+    np.testing.assert_array_equal(after.label, before.label)
+    builder.add_scan(scan_from(world, truth[4], 4), stamp=4.0)
+    builder.add_scan(scan_from(world, truth[5], 5), pose=truth[5], stamp=5.0)
+    with pytest.raises(ScanRejected, match="map is full") as info:
+        builder.add_scan(scan_from(world, truth[6], 6), pose=truth[6], stamp=6.0)
+    assert info.value.kind == "full"
+    result = builder.finish()
+    assert len(result.scan_ids) == 6 and len(result.map) > len(before)
+    builder.reset()
+    assert builder.scan_count == 0 and len(builder.current_map()) == 0
+
+
+def test_streaming_memory_is_bounded_by_the_area(world):
+    """27 scans of the same street: at most two clouds wait per level, and the map does not
+    grow with the number of scans, only with the area."""
+    pose = drive(1)[0]
+    params = MapBuildParams(icp=False, voxel=0.2, d_max=25.0)
+    builder = StreamingMapBuilder(params)
+    sizes, waiting = [], []
+    for i in range(27):
+        builder.add_scan(scan_from(world, pose, 100 + i, keep=0.3, noise=0.0), pose, float(i))
+        sizes.append(len(builder.current_map()))
+        waiting.append(max(len(level) for level in builder._levels))
+    assert max(waiting) <= 2 and len(builder._levels) == 4  # 27 = 3^3 merged to one cloud
+    assert sizes[-1] < 1.3 * sizes[8]  # the area is covered after ~9 scans
+    everything = filters.voxel_downsample(filters.transform(filters.range_filter(
+        scan_from(world, pose, 0, keep=1.0, noise=0.0), 25.0), pose), 0.2)  # all it can see
+    assert len(everything) * 0.9 < sizes[-1] <= len(everything)
+
+
+def test_crop_and_corridor_in_the_builder(world):
+    truth = drive(6, step=2.0, seed=3)
+    params = MapBuildParams(icp=False, corridor=2.5, crop_radius=15.0,
+                            crop_center=(5.0, 0.0, 0.0))
+    result = build_map([ScanInput(scan_from(world, p, i), p, float(i)) for i, p in
+                        enumerate(truth)], params)
+    xy = result.map.xyz[:, :2] - [5.0, 0.0]
+    assert np.hypot(xy[:, 0], xy[:, 1]).max() <= 15.0
+    cars = result.map.xyz[result.map.label == CAR]
+    assert len(cars) > 0 and np.abs(cars[:, 1]).min() > 2.0  # only the cars off the path
+
+
+# --- real data -----------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def kitti_scans():
+    if not KITTI.is_dir():
+        pytest.skip(f"real KITTI data absent ({KITTI})")
+    seq = kitti.open_sequence(KITTI)
+    scans = [filters.range_filter(seq.scan(i), 60.0) for i in range(len(seq))]
+    above = [s.xyz[evaluation.above_ground(s.xyz)] for s in scans]
+    return seq, scans, above
+
+
+def _alignment(above, poses):
+    return evaluation.scan_alignment([filters.apply_rigid(a, p) for a, p in zip(above, poses)])
+
+
+@needs_kitti
+def test_kitti_refined_map_alignment_recovers_from_pose_noise(kitti_scans, record_property):
+    seq, scans, above = kitti_scans
+    noisy = evaluation.perturb_poses(seq.poses, 0.3, 1.0, seed=0)
+    figures = {"true poses, no ICP": _alignment(above, seq.poses),
+               "perturbed 0.3 m / 1 deg, no ICP": _alignment(above, noisy)}
+    for name, poses in (("true", seq.poses), ("perturbed", noisy)):
+        result = build_map([ScanInput(s, p, t, str(i)) for i, (s, p, t) in
+                            enumerate(zip(scans, poses, seq.stamps))], MapBuildParams())
+        figures[f"{name} poses, ICP"] = _alignment(above, result.refined_poses)
+    for name, value in figures.items():
+        record_property(name, round(value, 4))
+    print("KITTI 00 scans 0-5, median NN distance of above-ground points:",
+          {k: f"{v * 100:.1f} cm" for k, v in figures.items()})
+    assert figures["perturbed 0.3 m / 1 deg, no ICP"] > 1.3 * figures["true poses, no ICP"]
+    assert figures["perturbed poses, ICP"] <= 1.2 * figures["true poses, ICP"]
+    assert figures["perturbed poses, ICP"] <= 1.2 * figures["true poses, no ICP"]
+
+
+# --- the command ---------------------------------------------------------------------------
+
+def _semcal(*args: str) -> subprocess.CompletedProcess:
+    semcal = Path(sys.executable).parent / "semcal"  # the installed entry point, a real process
+    return subprocess.run([str(semcal), *args], capture_output=True, text=True, timeout=120)
+
+
+@needs_kitti
+def test_build_map_command_on_kitti(tmp_path):
+    out = tmp_path / "map.ply"
+    proc = _semcal("build-map", str(KITTI), "-o", str(out), "--count", "3", "--voxel", "0.2",
+                   "--pose-noise", "0.2", "0.5", "--crop-radius", "30", "--crop-center", "0",
+                   "0", "0", "--write-poses", str(tmp_path / "poses.yaml"))
+    assert proc.returncode == 0, proc.stderr
+    cloud = read_ply(out)
+    assert cloud.label.dtype == np.uint16 and len(cloud) > 10_000
+    assert np.hypot(cloud.xyz[:, 0], cloud.xyz[:, 1]).max() <= 30.0
+    assert not np.isin(cloud.label, LabelMapping().dynamic_kitti_ids()).any()
+    assert "3 scans (0 skipped)" in proc.stdout and "pose corrections by ICP" in proc.stdout
+    assert "refined poses vs unperturbed poses" in proc.stdout
+    assert (tmp_path / "poses.yaml").is_file()
+    again = _semcal("build-map", str(KITTI), "-o", str(out), "--count", "3")
+    assert again.returncode == 1 and "exists (use --force" in again.stderr
+
+
+def test_build_map_command_refuses_unknown_input(tmp_path):
+    proc = _semcal("build-map", str(tmp_path))
+    assert proc.returncode == 1
+    assert "neither a scene folder" in proc.stderr
