@@ -307,3 +307,61 @@ def test_add_label_field_keeps_every_field_and_replaces_a_label():
     np.testing.assert_array_equal(out["x"], points["x"])
     np.testing.assert_array_equal(out["t"], points["t"])
     np.testing.assert_array_equal(out["label"], [40, 50, 70, 80])
+
+
+def test_calibrator_config_file_holds_only_node_and_engine_parameters():
+    from pathlib import Path
+
+    from semcal_ros.config import apply_flat, dataclass_fields_flat, load_node_params
+    from semcal_ros.params import CalibrationParams
+    from semcal_ros.ros.nodes.calibrator import CalibratorNodeParams
+
+    flat = load_node_params(Path(__file__).resolve().parents[1] / "config" / "calibrator.yaml",
+                            "calibrator")
+    node, engine = CalibratorNodeParams(), CalibrationParams()
+    unknown = set(flat) - set(dataclass_fields_flat(node)) - set(dataclass_fields_flat(engine))
+    assert not unknown
+    apply_flat(node, flat, strict=False)
+    apply_flat(engine, flat, strict=False)
+
+
+# --- the Calibrate goal ----------------------------------------------------------------------
+def test_goal_options_become_engine_parameters():
+    from semcal_interfaces.action import Calibrate
+
+    from semcal_ros.params import CalibrationParams
+    from semcal_ros.ros.calibrate_goal import goal_params
+    from semcal_ros.ros.client import make_goal
+
+    defaults = CalibrationParams()
+    initial = Pose.from_body_rpy_deg([0.0, 0.0, 5.0], [0.0, 10.0, 0.0])
+    assert goal_params(make_goal(initial), defaults) == defaults
+    goal = make_goal(initial, bound_translation_m=(1.0, 0.0, 0.5), bound_rpy_deg=(0.0, 3.0, 0.0),
+                     verification_starts=0, roll=Calibrate.Goal.ROLL_FREE,
+                     yaw_search=Calibrate.Goal.YAW_SEARCH_ON, loss="huber")
+    p = goal_params(goal, defaults)
+    assert p.search.bound_xyz == (1.0, defaults.search.bound_xyz[1], 0.5)
+    assert p.search.bound_pitch_deg == 3.0
+    assert p.search.bound_yaw_deg == defaults.search.bound_yaw_deg
+    assert p.search.free_roll and p.search.yaw_search
+    assert p.verification.starts == 0 and p.loss.kind == "huber"
+
+
+def test_goal_request_checks_inputs():
+    from semcal_ros.params import CalibrationParams
+    from semcal_ros.ros.calibrate_goal import Inputs, goal_request
+    from semcal_ros.ros.client import make_goal
+
+    cam = CameraModel(64, 48, np.array([[50.0, 0, 32], [0, 50, 24], [0, 0, 1]]), np.zeros(5),
+                      frame_id="cam")
+    inputs = Inputs(_cloud(), "map", np.zeros((40, 64), np.uint8), "cam", cam)
+    initial = Pose.from_body_rpy_deg([0.0, 0.0, 5.0], [0.0, 10.0, 0.0])
+    with pytest.raises(ValueError, match="label image is 64x40 but CameraInfo says 64x48"):
+        goal_request(make_goal(initial), inputs, CalibrationParams(), 0)
+    inputs.labels = np.zeros((48, 64), np.uint8)
+    with pytest.raises(ValueError, match="goal asks for camera 'other' but the CameraInfo is "
+                                         "from 'cam'"):
+        goal_request(make_goal(initial, camera_frame_id="other"), inputs, CalibrationParams(), 0)
+    request = goal_request(make_goal(initial, seed=7), inputs, CalibrationParams(), 0)
+    assert (request.camera_frame, request.map_frame, request.seed) == ("cam", "map", 7)
+    assert translation_error(request.initial, initial) < 1e-12

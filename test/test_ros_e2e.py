@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -239,3 +240,116 @@ def test_segmenter_without_model_exits_with_a_clear_error(graph):
     node = graph.start_node("cloud_segmenter")
     assert node.wait(20) == 1
     assert "parameters 'model' (ONNX file) and 'model_config' (YAML) are required" in node.log()
+
+
+# --- calibrator ------------------------------------------------------------------------------
+def diagnostics_of(listener: Listener, node_name: str) -> Callable[[], dict | None]:
+    """A function returning the latest /diagnostics key/values (plus 'message') of a node."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    latest: dict[str, dict] = {}
+
+    def on_status(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.hardware_id == node_name:
+                values = {kv.key: kv.value for kv in status.values}
+                values["message"], values["level"] = status.message, status.level[0]
+                latest[node_name] = values
+
+    listener.node.create_subscription(DiagnosticArray, "/diagnostics", on_status,
+                                      qos.reliable(50))
+    return lambda: latest.get(node_name)
+
+
+def test_calibrator_answers_goals_it_cannot_run_and_stays_up(graph, listener):
+    from semcal_ros.pose import Pose
+    from semcal_ros.ros.client import CalibrateClient, make_goal
+
+    cal = graph.start_node("calibrator")
+    client = CalibrateClient(listener.node)
+    client.wait_for_server(20)
+    good = Pose.from_body_rpy_deg([1.0, 2.0, 6.0], [0.0, 20.0, 45.0])
+    out = client.call(listener.executor, make_goal(good), timeout=20)
+    assert out.accepted and out.status == "aborted" and not out.result.success
+    assert "no map received yet (topic '/map')" in out.result.message
+    assert "no label image received yet" in out.result.message
+
+    bad = make_goal(good, bound_translation_m=(-1.0, 0.0, 0.0), loss="l1")
+    bad.initial_pose.pose.orientation.w = 2.0
+    out = client.call(listener.executor, bad, timeout=20)
+    assert out.status == "aborted"
+    for text in ("invalid goal", "not a unit quaternion", "bound_translation_m.x must be >= 0",
+                 "loss must be 'l2', 'huber'"):
+        assert text in out.result.message, out.result.message
+    assert cal.running()
+    out = client.call(listener.executor, make_goal(good, map_frame="odom"), timeout=20)
+    assert "initial_pose is in frame 'odom' but the map is in 'map'" in out.result.message
+    assert cal.running()
+
+
+def camera_publishers(listener: Listener, scene: Path, period: float = 0.5) -> None:
+    """Publish the scene's label image and CameraInfo periodically, as a camera would."""
+    from sensor_msgs.msg import CameraInfo, Image
+
+    from semcal_ros.io.files import read_camera_info, read_label_image, read_rgb_image
+
+    camera = read_camera_info(scene / "camera_info.yaml")
+    header = conv.make_header(camera.frame_id, 1700000002.5)
+    labels = conv.numpy_to_image(read_label_image(scene / "labels.png"), "mono8", header)
+    image = conv.numpy_to_image(read_rgb_image(scene / "image.png"), "rgb8", header)
+    info = conv.model_to_camera_info(camera, header)
+    pubs = [(listener.node.create_publisher(Image, "/camera/labels", qos.reliable(1)), labels),
+            (listener.node.create_publisher(Image, "/camera/image_raw", qos.reliable(1)), image),
+            (listener.node.create_publisher(CameraInfo, "/camera/camera_info", qos.reliable(1)),
+             info)]
+
+    def publish() -> None:
+        for pub, msg in pubs:
+            pub.publish(msg)
+
+    listener.node.create_timer(period, publish)
+
+
+def test_calibrator_feedback_cancel_and_a_second_goal(graph, listener, demo_scene):
+    from semcal_ros.io.files import read_pose
+    from semcal_ros.ros.client import CalibrateClient, make_goal
+
+    cal = graph.start_node("calibrator", params={"map_file": str(demo_scene / "map.ply")})
+    diag = diagnostics_of(listener, "calibrator")
+    camera_publishers(listener, demo_scene)
+    spin_until(listener.executor, lambda: (diag() or {}).get("message") == "ready", 40,
+               "the calibrator to hold a map, a label image and CameraInfo")
+    client = CalibrateClient(listener.node)
+    client.wait_for_server(20)
+    initial = read_pose(demo_scene / "initial.yaml")
+    first = client.send(listener.executor, make_goal(initial, verification_starts=30))
+    assert first.accepted
+    spin_until(listener.executor, lambda: first.feedback and first.feedback[-1][1].evaluations,
+               60, "feedback from the optimiser")
+    second = client.send(listener.executor, make_goal(initial))
+    assert not second.accepted
+    cal.wait_for_log(r"goal rejected: busy: goal \w+ has been running for", 10)
+
+    times = [t for t, _ in first.feedback]
+    assert max(np.diff(times)) <= 1.0, np.diff(times)  # feedback at least once a second
+    last = first.feedback[-1][1]
+    assert last.evaluations > 0 and last.stage and np.isfinite(last.best_loss)
+
+    t_cancel = time.monotonic()
+    client.cancel(listener.executor, first)
+    client.wait(listener.executor, first, timeout=10)
+    cancel_seconds = time.monotonic() - t_cancel
+    print(f"cancel to result: {cancel_seconds:.2f} s")
+    assert first.status == "canceled" and "cancelled after" in first.result.message
+    assert cancel_seconds < 1.0
+    # the node is free again; a cancel right away (while the engine prepares the map) is also
+    # answered within a second
+    spin_until(listener.executor, lambda: (diag() or {}).get("state") == "idle", 10,
+               "the engine to stop")
+    third = client.send(listener.executor, make_goal(initial))
+    assert third.accepted
+    t_cancel = time.monotonic()
+    client.cancel(listener.executor, third)
+    client.wait(listener.executor, third, timeout=10)
+    assert third.status == "canceled" and time.monotonic() - t_cancel < 1.0
+    assert cal.running()

@@ -1,0 +1,151 @@
+"""The Calibrate action's goal checked and turned into the engine's inputs.
+
+Kept apart from the node so that what makes a goal invalid, and what each goal field does to the
+:class:`~semcal_ros.params.CalibrationParams`, can be read (and tested) without DDS. Every problem
+is named in one message, because the caller only sees the action result's text.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from semcal_ros.camera import CameraModel
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.config import apply_flat
+from semcal_ros.params import CalibrationParams
+from semcal_ros.pose import Pose
+
+ROLL_CHOICES = {0: None, 1: False, 2: True}  # ROLL_DEFAULT, ROLL_FIXED, ROLL_FREE
+YAW_SEARCH_CHOICES = {0: None, 1: False, 2: True}
+LOSS_CHOICES = ("", "l2", "huber")
+
+
+@dataclass
+class Inputs:
+    """What the calibrator node holds when a goal arrives (None: not received yet)."""
+
+    map_cloud: LabelledCloud | None
+    map_frame: str
+    labels: np.ndarray | None
+    labels_frame: str
+    camera: CameraModel | None
+    map_topic: str = "map"
+    labels_topic: str = "camera/labels"
+    camera_info_topic: str = "camera/camera_info"
+
+
+@dataclass
+class Request:
+    """A valid goal: where to start, with which parameters, for which frames."""
+
+    initial: Pose
+    params: CalibrationParams
+    seed: int | None
+    map_frame: str
+    camera_frame: str
+
+
+def _vector(v: Any) -> list[float]:
+    return [float(v.x), float(v.y), float(v.z)]
+
+
+def goal_problems(goal: Any, inputs: Inputs) -> list[str]:
+    """Everything wrong with ``goal`` given ``inputs``; empty when it can run."""
+    problems = []
+    pose = goal.initial_pose.pose
+    values = [pose.position.x, pose.position.y, pose.position.z, pose.orientation.x,
+              pose.orientation.y, pose.orientation.z, pose.orientation.w]
+    if not all(math.isfinite(v) for v in values):
+        problems.append("initial_pose contains NaN or infinite values")
+    else:
+        norm = math.sqrt(sum(v * v for v in values[3:]))
+        if abs(norm - 1.0) > 1e-3:
+            problems.append(f"initial_pose orientation is not a unit quaternion (norm {norm:.6g})")
+    frame = goal.initial_pose.header.frame_id
+    if frame and frame != inputs.map_frame:
+        problems.append(f"initial_pose is in frame '{frame}' but the map is in "
+                        f"'{inputs.map_frame}' (give the pose in the map frame)")
+    for name, axes in (("bound_translation_m", "xyz"), ("bound_rpy_deg", "xyz")):
+        for axis, value in zip(axes, _vector(getattr(goal, name))):
+            if not math.isfinite(value) or value < 0:
+                problems.append(f"{name}.{axis} must be >= 0 (0 = node default), got {value}")
+    if goal.verification_starts < -1:
+        problems.append(f"verification_starts must be >= 0 (-1 = node default), "
+                        f"got {goal.verification_starts}")
+    if goal.roll not in ROLL_CHOICES:
+        problems.append(f"roll must be ROLL_DEFAULT, ROLL_FIXED or ROLL_FREE (0-2), got {goal.roll}")
+    if goal.yaw_search not in YAW_SEARCH_CHOICES:
+        problems.append(f"yaw_search must be 0-2, got {goal.yaw_search}")
+    if goal.loss not in LOSS_CHOICES:
+        problems.append(f"loss must be 'l2', 'huber' or '' (node default), got '{goal.loss}'")
+    problems += input_problems(goal.camera_frame_id, inputs)
+    return problems
+
+
+def input_problems(camera_frame_id: str, inputs: Inputs) -> list[str]:
+    """Missing or inconsistent map / label image / CameraInfo."""
+    problems = []
+    if inputs.map_cloud is None:
+        problems.append(f"no map received yet (topic '{inputs.map_topic}')")
+    elif len(inputs.map_cloud) == 0:
+        problems.append(f"the map on '{inputs.map_topic}' is empty")
+    if inputs.labels is None:
+        problems.append(f"no label image received yet (topic '{inputs.labels_topic}')")
+    if inputs.camera is None:
+        problems.append(f"no CameraInfo received yet (topic '{inputs.camera_info_topic}')")
+    if inputs.labels is not None and inputs.camera is not None:
+        h, w = inputs.labels.shape[:2]
+        if (w, h) != (inputs.camera.width, inputs.camera.height):
+            problems.append(f"label image is {w}x{h} but CameraInfo says "
+                            f"{inputs.camera.width}x{inputs.camera.height}")
+    if camera_frame_id:
+        for what, frame in (("CameraInfo", inputs.camera.frame_id if inputs.camera else None),
+                            ("label image", inputs.labels_frame if inputs.labels is not None
+                             else None)):
+            if frame is not None and frame != camera_frame_id:
+                problems.append(f"goal asks for camera '{camera_frame_id}' but the {what} is "
+                                f"from '{frame}'")
+    return problems
+
+
+def goal_params(goal: Any, defaults: CalibrationParams) -> CalibrationParams:
+    """``defaults`` with the goal's bounds and options applied (0 / -1 / '' keep defaults)."""
+    search = defaults.search
+    flat: dict[str, Any] = {}
+    bt = _vector(goal.bound_translation_m)
+    if any(v > 0 for v in bt):
+        flat["search.bound_xyz"] = tuple(v if v > 0 else d for v, d in zip(bt, search.bound_xyz))
+    roll, pitch, yaw = _vector(goal.bound_rpy_deg)
+    for key, value in (("bound_roll_deg", roll), ("bound_pitch_deg", pitch),
+                       ("bound_yaw_deg", yaw)):
+        if value > 0:
+            flat[f"search.{key}"] = value
+    if ROLL_CHOICES.get(goal.roll) is not None:
+        flat["search.free_roll"] = ROLL_CHOICES[goal.roll]
+    if YAW_SEARCH_CHOICES.get(goal.yaw_search) is not None:
+        flat["search.yaw_search"] = YAW_SEARCH_CHOICES[goal.yaw_search]
+    if goal.verification_starts >= 0:
+        flat["verification.starts"] = int(goal.verification_starts)
+    if goal.loss:
+        flat["loss.kind"] = goal.loss
+    return apply_flat(defaults, flat)
+
+
+def goal_request(goal: Any, inputs: Inputs, defaults: CalibrationParams,
+                 default_seed: int) -> Request:
+    """A runnable request, or ValueError listing every problem of the goal."""
+    problems = goal_problems(goal, inputs)
+    if problems:
+        raise ValueError("; ".join(problems))
+    p = goal.initial_pose.pose
+    initial = Pose(np.array([p.position.x, p.position.y, p.position.z]),
+                   np.array([p.orientation.x, p.orientation.y, p.orientation.z,
+                             p.orientation.w]))
+    params = goal_params(goal, defaults)
+    camera_frame = goal.camera_frame_id or inputs.camera.frame_id or "camera_optical"
+    seed = int(goal.seed) if goal.seed >= 0 else default_seed
+    return Request(initial, params, seed if seed >= 0 else None, inputs.map_frame, camera_frame)

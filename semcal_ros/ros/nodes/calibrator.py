@@ -1,0 +1,431 @@
+"""``calibrator``: the Calibrate action server.
+
+Holds the latest labelled map (``map``, transient local), label image (``camera/labels``, mono8
+trainIds), CameraInfo (``camera/camera_info``) and camera image (``camera/image_raw``, for the
+overlay); all topic names are relative, so remap them (``-r map:=/other/map``) or push the node
+into a namespace. A goal runs :func:`semcal_ros.optimize.calibrate` in an executor thread of its
+own (MultiThreadedExecutor, reentrant action group), so feedback (a timer, at least once a second),
+cancel requests and new messages keep flowing while it works. One goal at a time: a second goal is
+rejected and the reason logged and shown in the diagnostics. The result goes to the caller, to
+``calibration/transform`` (TransformStamped, transient local), to ``/tf_static`` (tf2_msgs
+TFMessage) and, as a picture of the map rendered at the result over the camera image, to
+``calibration/overlay``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.node import Node
+from geometry_msgs.msg import TransformStamped
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from semcal_interfaces.action import Calibrate
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.labels import LabelMapping, colorize
+from semcal_ros.params import CalibrationParams
+from semcal_ros.pose import Pose
+from semcal_ros.ros import conversions as conv
+from semcal_ros.ros import qos
+from semcal_ros.ros.calibrate_goal import Inputs, goal_request, input_problems
+from semcal_ros.ros.diagnostics import Diagnostics, Level
+from semcal_ros.ros.params import declare_and_read
+from semcal_ros.ros.runtime import run_node
+
+try:  # not on PyPI: .ci/setup.d/10-interfaces.sh builds it where it is missing
+    from tf2_msgs.msg import TFMessage
+except ImportError:  # pragma: no cover - depends on the installation
+    TFMessage = None
+
+
+@dataclass
+class CalibratorNodeParams:
+    """The node's own parameters; the engine's are :class:`CalibrationParams` (same namespace)."""
+
+    map_file: str = ""  # labelled PLY loaded at start (a map from elsewhere); the topic still wins
+    map_frame: str = "map"  # frame of map_file and of map messages without a frame id
+    label_mapping: str = ""  # YAML of the label alignment (empty: the built-in default)
+    seed: int = 0  # of the verification starts when the goal gives none (negative: random)
+    feedback_period: float = 0.5  # s between feedback messages while a goal runs
+    diagnostics_period: float = 1.0  # s between /diagnostics messages (0: off)
+    publish_tf_static: bool = True  # also publish the result on /tf_static
+    overlay_file: str = ""  # also write the overlay picture here (PNG) after each success
+
+    def __post_init__(self) -> None:
+        if not 0 < self.feedback_period <= 1.0:
+            raise ValueError("feedback_period must be in (0, 1] s (feedback at least once a "
+                             f"second), got {self.feedback_period}")
+
+
+@dataclass
+class _Run:
+    """The goal being worked on."""
+
+    goal_id: str
+    started: float
+    stage: str = "preparing"
+    evaluations: int = 0
+    best_loss: float = math.inf
+    best_pose: Pose | None = None
+
+
+class _EngineJob:
+    """One :func:`semcal_ros.optimize.calibrate` call in a thread; result or error kept."""
+
+    def __init__(self, node: "CalibratorNode", handle: Any, inputs: Inputs, request: Any) -> None:
+        self.node, self.handle, self.inputs, self.request = node, handle, inputs, request
+        self.result: Any = None
+        self.error: Exception | None = None
+        self.done = threading.Event()
+        self.release_on_exit = False
+        self.started = time.perf_counter()
+        self.thread = threading.Thread(target=self._run, name="calibrate", daemon=True)
+
+    def seconds(self) -> float:
+        return time.perf_counter() - self.started
+
+    def _should_stop(self) -> bool:
+        return self.handle.is_cancel_requested or not self.node.context.ok()
+
+    def _run(self) -> None:
+        from semcal_ros.optimize import Cancelled, calibrate
+
+        i, r = self.inputs, self.request
+        try:
+            self.result = calibrate(i.map_cloud, i.labels, i.camera, r.initial, r.params,
+                                    self.node.mapping, r.seed, self.node.progress,
+                                    self._should_stop)
+        except Cancelled as exc:
+            self.error = exc
+        except Exception as exc:  # noqa: BLE001 - reported as the goal's result
+            if not isinstance(exc, ValueError):
+                self.node.get_logger().error(traceback.format_exc())
+            self.error = exc
+        finally:
+            self.done.set()
+            self.node.job_ended(self)
+
+
+class CalibratorNode(Node):
+    def __init__(self) -> None:
+        super().__init__("calibrator")
+        self.opts = declare_and_read(self, CalibratorNodeParams())
+        self.defaults = declare_and_read(self, CalibrationParams())
+        self.mapping = LabelMapping.from_yaml(self.opts.label_mapping) \
+            if self.opts.label_mapping else LabelMapping()
+        self._lock = threading.Lock()
+        self._map: LabelledCloud | None = None
+        self._map_frame = self.opts.map_frame
+        self._map_source = ""
+        self._labels: np.ndarray | None = None
+        self._labels_frame = ""
+        self._camera = None
+        self._rgb: np.ndarray | None = None
+        self._run: _Run | None = None
+        self._input_errors: dict[str, str] = {}
+        self.last_rejection = ""
+        self.last_result = ""
+        if self.opts.map_file:
+            self._load_map_file(self.opts.map_file)
+
+        inputs = MutuallyExclusiveCallbackGroup()
+        timers = MutuallyExclusiveCallbackGroup()
+        overrides = qos.overridable()
+        self.create_subscription(PointCloud2, "map", self._on_map, qos.latched(),
+                                 callback_group=inputs, qos_overriding_options=overrides)
+        self.create_subscription(Image, "camera/labels", self._on_labels, qos.sensor(2),
+                                 callback_group=inputs, qos_overriding_options=overrides)
+        self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info,
+                                 qos.sensor(2), callback_group=inputs,
+                                 qos_overriding_options=overrides)
+        self.create_subscription(Image, "camera/image_raw", self._on_image, qos.sensor(2),
+                                 callback_group=inputs, qos_overriding_options=overrides)
+        self.result_pub = self.create_publisher(
+            TransformStamped, "calibration/transform", qos.latched(),
+            qos_overriding_options=overrides)
+        self.overlay_pub = self.create_publisher(Image, "calibration/overlay", qos.latched(),
+                                                 qos_overriding_options=overrides)
+        self.tf_pub = None
+        if self.opts.publish_tf_static:
+            if TFMessage is None:
+                self.get_logger().warning(
+                    "tf2_msgs is not installed: the result is published on "
+                    "calibration/transform only (not on /tf_static)")
+            else:
+                self.tf_pub = self.create_publisher(TFMessage, "/tf_static", qos.latched())
+        self.action = ActionServer(
+            self, Calibrate, "calibrate", execute_callback=self._execute,
+            goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
+            callback_group=ReentrantCallbackGroup())
+        self._feedback_handle = None
+        self.create_timer(self.opts.feedback_period, self._send_feedback, callback_group=timers)
+        self.diagnostics = Diagnostics(self, self._report, self.opts.diagnostics_period,
+                                       callback_group=timers)
+        self.get_logger().info(
+            f"ready: action '{self.resolve_topic_name('calibrate')}', map on "
+            f"'{self.resolve_topic_name('map')}', labels on "
+            f"'{self.resolve_topic_name('camera/labels')}'")
+
+    # --- inputs ----------------------------------------------------------------------------
+    def _load_map_file(self, path: str) -> None:
+        from semcal_ros.io.ply import read_ply
+
+        cloud = read_ply(path)
+        with self._lock:
+            self._map, self._map_source = cloud, path
+        self.get_logger().info(f"map from {path}: {len(cloud)} points")
+
+    def _input_failed(self, what: str, exc: Exception) -> None:
+        text = str(exc)
+        if self._input_errors.get(what) != text:
+            self.get_logger().error(f"ignoring {what}: {text}")
+        self._input_errors[what] = text
+
+    def _on_map(self, msg: PointCloud2) -> None:
+        try:
+            cloud = conv.pointcloud2_to_cloud(msg, require_label=True).finite()
+        except ValueError as exc:
+            self._input_failed("map", exc)
+            return
+        self._input_errors.pop("map", None)
+        with self._lock:
+            first = self._map is None or self._map_source != "topic"
+            self._map, self._map_source = cloud, "topic"
+            self._map_frame = msg.header.frame_id or self.opts.map_frame
+        if first:
+            self.get_logger().info(f"map received: {len(cloud)} points in '{self._map_frame}'")
+
+    def _on_labels(self, msg: Image) -> None:
+        try:
+            labels = conv.image_to_labels(msg)
+        except ValueError as exc:
+            self._input_failed("label image", exc)
+            return
+        self._input_errors.pop("label image", None)
+        with self._lock:
+            self._labels, self._labels_frame = labels, msg.header.frame_id
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            camera = conv.camera_info_to_model(msg)
+        except ValueError as exc:
+            self._input_failed("CameraInfo", exc)
+            return
+        self._input_errors.pop("CameraInfo", None)
+        with self._lock:
+            self._camera = camera
+
+    def _on_image(self, msg: Image) -> None:
+        try:
+            rgb = conv.image_to_rgb(msg)
+        except ValueError as exc:
+            self._input_failed("camera image", exc)
+            return
+        self._input_errors.pop("camera image", None)
+        with self._lock:
+            self._rgb = rgb
+
+    def inputs(self) -> Inputs:
+        with self._lock:
+            return Inputs(self._map, self._map_frame, self._labels, self._labels_frame,
+                          self._camera, self.resolve_topic_name("map"),
+                          self.resolve_topic_name("camera/labels"),
+                          self.resolve_topic_name("camera/camera_info"))
+
+    # --- the action ------------------------------------------------------------------------
+    def _on_goal(self, goal: Any) -> GoalResponse:
+        with self._lock:
+            if self._run is not None:
+                age = time.monotonic() - self._run.started
+                self.last_rejection = (f"busy: goal {self._run.goal_id} has been running for "
+                                       f"{age:.1f} s, now '{self._run.stage}' (one calibration "
+                                       f"at a time)")
+                self.get_logger().warning(f"goal rejected: {self.last_rejection}")
+                return GoalResponse.REJECT
+            self._run = _Run("(accepted)", time.monotonic())
+        return GoalResponse.ACCEPT
+
+    def _execute(self, handle: Any) -> Calibrate.Result:
+        """Validate, start the engine in a thread of its own, and answer the goal as soon as it
+        is done or cancelled: a cancel is answered at once even while the engine is in a step
+        that checks for it only at its end (it then stops there; until it has, new goals are
+        refused as busy)."""
+        goal_id = bytes(handle.goal_id.uuid).hex()[:8]
+        with self._lock:
+            self._run = _Run(goal_id, time.monotonic())
+        job = None
+        try:
+            inputs = self.inputs()
+            try:
+                request = goal_request(handle.request, inputs, self.defaults, self.opts.seed)
+            except ValueError as exc:
+                return self._finish(handle, "abort", f"invalid goal: {exc}")
+            self.get_logger().info(
+                f"goal {goal_id}: calibrating '{request.camera_frame}' against a map of "
+                f"{len(inputs.map_cloud)} points from {np.round(request.initial.translation, 3)}")
+            job = _EngineJob(self, handle, inputs, request)
+            with self._lock:
+                self._feedback_handle = handle
+            job.thread.start()
+            while not job.done.wait(0.05):
+                if handle.is_cancel_requested:
+                    return self._cancelled(handle, job)
+                if not self.context.ok():
+                    return self._finish(handle, "abort", "the calibrator is shutting down")
+            return self._answer(handle, job, inputs, request)
+        finally:
+            with self._lock:
+                self._feedback_handle = None
+                if job is None or job.done.is_set():
+                    self._run = None
+                else:  # the engine stops at its next check, then frees the node
+                    job.release_on_exit = True
+                    if self._run is not None:
+                        self._run.stage = "stopping (answered)"
+
+    def _answer(self, handle: Any, job: "_EngineJob", inputs: Inputs, request: Any
+                ) -> Calibrate.Result:
+        if job.error is not None:
+            from semcal_ros.optimize import Cancelled
+
+            exc = job.error
+            if isinstance(exc, Cancelled):
+                if handle.is_cancel_requested:
+                    return self._cancelled(handle, job)
+                return self._finish(handle, "abort", "the calibrator is shutting down")
+            if isinstance(exc, ValueError):
+                return self._finish(handle, "abort", f"calibration failed: {exc}",
+                                    seconds=job.seconds())
+            return self._finish(handle, "abort", f"internal error: {type(exc).__name__}: {exc}",
+                                seconds=job.seconds())
+        result = job.result
+        transform = conv.transform_from_pose(result.pose, request.map_frame,
+                                             request.camera_frame,
+                                             self.get_clock().now().to_msg())
+        self._publish_result(transform, inputs, result.pose)
+        rpy = result.pose.body_rpy_deg()
+        message = (f"calibrated '{request.camera_frame}': t = "
+                   f"[{', '.join(f'{v:.3f}' for v in result.pose.translation)}] m, rpy = "
+                   f"[{', '.join(f'{v:.2f}' for v in rpy)}] deg, loss {result.loss:.5f}, "
+                   f"{result.accepted}/{len(result.runs)} runs agree within "
+                   f"{result.spread_translation_m * 100:.1f} cm / "
+                   f"{result.spread_rotation_deg:.3f} deg, {result.seconds:.1f} s")
+        return self._finish(handle, "succeed", message, transform=transform,
+                            loss=float(result.loss),
+                            spread_translation_m=float(result.spread_translation_m),
+                            spread_rotation_deg=float(result.spread_rotation_deg),
+                            evaluations=int(result.evaluations), seconds=float(result.seconds))
+
+    def _cancelled(self, handle: Any, job: "_EngineJob") -> Calibrate.Result:
+        with self._lock:
+            evaluations = self._run.evaluations if self._run else 0
+        seconds = job.seconds()
+        return self._finish(handle, "canceled", f"cancelled after {seconds:.1f} s "
+                            f"({evaluations} evaluations reported)", evaluations=evaluations,
+                            seconds=seconds)
+
+    def _finish(self, handle: Any, outcome: str, message: str, **fields: Any
+                ) -> Calibrate.Result:
+        getattr(handle, outcome)()
+        self.last_result = message
+        past = {"succeed": "succeeded", "abort": "aborted", "canceled": "cancelled"}[outcome]
+        log = self.get_logger().info if outcome == "succeed" else self.get_logger().warning
+        log(f"goal {past}: {message}")
+        return Calibrate.Result(success=outcome == "succeed", message=message, **fields)
+
+    def progress(self, p: Any) -> None:
+        with self._lock:
+            if self._run is not None:
+                self._run.stage, self._run.evaluations = p.stage, p.evaluations
+                self._run.best_loss, self._run.best_pose = p.best_loss, p.best_pose
+
+    def job_ended(self, job: "_EngineJob") -> None:
+        with self._lock:
+            if job.release_on_exit:
+                self._run = None
+
+    def _publish_result(self, transform: Any, inputs: Inputs, pose: Pose) -> None:
+        self.result_pub.publish(transform)
+        if self.tf_pub is not None:
+            self.tf_pub.publish(TFMessage(transforms=[transform]))
+        try:
+            self._publish_overlay(inputs, pose, transform.header)
+        except Exception as exc:  # noqa: BLE001 - the overlay is a by-product; the result stands
+            self.get_logger().error(f"overlay failed: {type(exc).__name__}: {exc}")
+
+    def _publish_overlay(self, inputs: Inputs, pose: Pose, header: Any) -> None:
+        from semcal_ros.overlay import render_overlay
+
+        with self._lock:
+            rgb = self._rgb
+        camera = inputs.camera
+        if rgb is None or rgb.shape[:2] != (camera.height, camera.width):
+            rgb = colorize(inputs.labels)  # no matching camera image: draw over the labels
+        overlay = render_overlay(inputs.map_cloud, camera, pose, rgb, self.mapping)
+        msg = conv.numpy_to_image(np.ascontiguousarray(overlay, np.uint8), "rgb8",
+                                  conv.make_header(camera.frame_id, header.stamp))
+        self.overlay_pub.publish(msg)
+        if self.opts.overlay_file:
+            from semcal_ros.io.files import write_rgb_image
+
+            write_rgb_image(self.opts.overlay_file, overlay)
+            self.get_logger().info(f"overlay written to {self.opts.overlay_file}")
+
+    def _send_feedback(self) -> None:
+        with self._lock:
+            handle, run = self._feedback_handle, self._run
+            if handle is None or run is None:
+                return
+            feedback = Calibrate.Feedback(stage=run.stage, evaluations=run.evaluations,
+                                          best_loss=float(run.best_loss),
+                                          elapsed_seconds=time.monotonic() - run.started)
+            if run.best_pose is not None:
+                feedback.best_pose = conv.pose_to_msg(run.best_pose)
+        try:
+            handle.publish_feedback(feedback)
+        except Exception as exc:  # noqa: BLE001 - the goal may finish between lock and publish
+            self.get_logger().debug(f"feedback not sent: {exc}")
+
+    # --- diagnostics -----------------------------------------------------------------------
+    def _report(self) -> tuple[Level, str, dict[str, Any]]:
+        inputs = self.inputs()
+        with self._lock:
+            run = self._run
+            values: dict[str, Any] = {
+                "map_points": len(inputs.map_cloud) if inputs.map_cloud is not None else 0,
+                "map_frame": inputs.map_frame,
+                "map_source": self._map_source or "none",
+                "label_image": "x".join(map(str, inputs.labels.shape[1::-1]))
+                if inputs.labels is not None else "none",
+                "camera_info": f"{inputs.camera.width}x{inputs.camera.height} "
+                               f"'{inputs.camera.frame_id}'" if inputs.camera else "none",
+                "state": f"running {run.goal_id} ({run.stage}, {run.evaluations} evaluations)"
+                if run else "idle",
+                "last_result": self.last_result or "none",
+                "last_rejection": self.last_rejection or "none",
+            }
+            values.update({f"input_error.{k}": v for k, v in self._input_errors.items()})
+        missing = input_problems("", inputs)
+        if self._input_errors:
+            return Level.ERROR, "; ".join(f"{k}: {v}" for k, v in self._input_errors.items()), \
+                values
+        if missing:
+            return Level.WARN, "; ".join(missing), values
+        return Level.OK, "calibrating" if run else "ready", values
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(CalibratorNode, threads=4, args=args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
