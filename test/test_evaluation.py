@@ -1,0 +1,112 @@
+"""The evaluation protocol: statistics by hand, initial guesses, one tiny real run, the CLI."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semcal_ros.evaluation import (
+    ProtocolParams, evaluate_scene, format_table, initial_guesses, summarize,
+)
+from semcal_ros.io.files import pose_from_dict, read_pose
+from semcal_ros.params import CalibrationParams, ScheduleParams
+from semcal_ros.pose import Pose, rotation_error_deg, translation_error
+
+#: One coarse Nelder-Mead stage: enough to move a start, cheap enough for a unit test.
+CHEAP = replace(CalibrationParams(), schedule=ScheduleParams(
+    scales=(4,), point_fractions=(0.125,), simplex=(1.0,), fatol=(1e-4,), max_evaluations=(25,)))
+
+
+def test_summary_statistics_match_a_hand_computation():
+    losses = [0.30, 0.10, 0.20, 0.10, 0.50]
+    t = [0.02, 0.04, 0.10, 0.01, 1.00]  # m
+    r = [0.05, 0.20, 0.03, 0.02, 2.00]  # deg
+    s = [1.0, 2.0, 3.0, 4.0, 5.0]
+    out = summarize(losses, t, r, s, keep=3)
+    # lowest losses: run 1 (0.10), run 3 (0.10, later tie), run 2 (0.20)
+    assert out.kept_translation_cm == pytest.approx((4 + 1 + 10) / 3)
+    assert out.kept_rotation_deg == pytest.approx((0.20 + 0.02 + 0.03) / 3)
+    assert out.all_translation_cm == pytest.approx((2 + 4 + 10 + 1 + 100) / 5)
+    assert out.all_rotation_deg == pytest.approx((0.05 + 0.2 + 0.03 + 0.02 + 2.0) / 5)
+    assert out.median_translation_cm == pytest.approx(4.0)
+    # success (< 5 cm and < 0.1 deg): runs 0 and 3 of all; run 3 of the kept three
+    assert out.success_rate == pytest.approx(2 / 5)
+    assert out.kept_success_rate == pytest.approx(1 / 3)
+    assert out.seconds_per_run == pytest.approx(3.0)
+    assert (out.runs, out.keep) == (5, 3)
+    with pytest.raises(ValueError, match="keep"):
+        summarize(losses, t, r, s, keep=6)
+    with pytest.raises(ValueError, match="equal length"):
+        summarize(losses, t[:4], r, s, keep=2)
+
+
+def test_initial_guesses_are_uniform_within_the_papers_ranges_and_seeded():
+    truth = Pose.from_body_rpy_deg([10.0, -4.0, 6.0], [0.0, 18.0, 120.0])
+    starts = initial_guesses(truth, ProtocolParams(runs=400, keep=10, seed=3))
+    dt = np.array([s.translation - truth.translation for s in starts])
+    drpy = np.array([s.body_rpy_deg() - truth.body_rpy_deg() for s in starts])
+    assert np.abs(dt).max() <= 2.5 and np.abs(dt).max() > 2.3
+    assert np.abs(drpy[:, 0]).max() < 1e-9  # roll untouched
+    assert np.abs(drpy[:, 1:]).max() <= 5.0 + 1e-9 and np.abs(drpy[:, 1:]).max() > 4.7
+    assert abs(dt.mean()) < 0.2  # centred: uniform noise around the truth
+    again = initial_guesses(truth, ProtocolParams(runs=400, keep=10, seed=3))
+    np.testing.assert_array_equal(starts[7].translation, again[7].translation)
+    with pytest.raises(ValueError, match="--keep"):
+        ProtocolParams(runs=5, keep=6)
+
+
+def test_a_tiny_real_evaluation_reports_its_own_runs(demo_scene: Path):
+    protocol = ProtocolParams(runs=2, keep=1, seed=1)
+    seen = []
+    res = evaluate_scene(demo_scene, "huber", protocol, CHEAP, on_run=lambda i, r: seen.append(i))
+    assert seen == [0, 1] and res.scene == "junction/ideal seed 0" and res.loss == "huber"
+    truth = read_pose(demo_scene / "ground_truth.yaml")
+    for run, start in zip(res.runs, initial_guesses(truth, protocol)):
+        np.testing.assert_allclose(run.start.translation, start.translation)
+        assert run.translation_m == pytest.approx(translation_error(run.pose, truth))
+        assert run.rotation_deg == pytest.approx(rotation_error_deg(run.pose, truth))
+        assert 0 < run.evaluations <= 26 and run.loss >= 0
+    # the optimiser moved every start closer to the truth
+    assert np.mean([r.translation_m for r in res.runs]) < np.mean(
+        [translation_error(r.start, truth) for r in res.runs])
+    expected = summarize([r.loss for r in res.runs], [r.translation_m for r in res.runs],
+                         [r.rotation_deg for r in res.runs], [r.seconds for r in res.runs], 1)
+    assert res.summary == expected
+    assert res.best is min(res.runs, key=lambda r: r.loss).pose
+    table = format_table([res])
+    assert "| junction/ideal seed 0 | 1 of 2 |" in table and "Huber (kept)" in table
+
+
+def test_cli_writes_json_table_and_overlay(demo_scene: Path, tmp_path: Path, capsys):
+    from semcal_ros.cli import main
+
+    config = tmp_path / "cheap.yaml"
+    config.write_text("calibrator:\n  ros__parameters:\n    schedule:\n      scales: [4]\n"
+                      "      point_fractions: [0.125]\n      simplex: [1.0]\n"
+                      "      fatol: [0.0001]\n      max_evaluations: [15]\n")
+    out = tmp_path / "ev.json"
+    code = main(["evaluate", str(demo_scene), "--runs", "2", "--keep", "1", "--quiet",
+                 "--config", str(config), "--json", str(out), "--overlay",
+                 str(tmp_path / "ov_{scene}_{loss}.png")])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "| junction/ideal seed 0 | 1 of 2 |" in printed and "L2 (kept)" in printed
+    data = json.loads(out.read_text())
+    assert data["protocol"]["runs"] == 2
+    runs = data["results"][0]["runs"]
+    best = min(runs, key=lambda r: r["loss"])
+    truth = read_pose(demo_scene / "ground_truth.yaml")
+    assert data["results"][0]["summary"]["kept_translation_cm"] == pytest.approx(
+        translation_error(pose_from_dict(best["pose"]), truth) * 100)
+    assert (tmp_path / f"ov_{demo_scene.name}_l2.png").is_file()
+    assert main(["evaluate", "--from-json", str(out)]) == 0  # the table again, from the JSON
+    assert capsys.readouterr().out.strip() == printed.split("\nall numbers")[0].strip()
+
+    assert main(["evaluate", str(tmp_path), "--runs", "2", "--keep", "1"]) == 1
+    assert "not a scene folder" in capsys.readouterr().err
+    assert main(["evaluate", str(demo_scene), "--runs", "2", "--keep", "3"]) == 1
+    assert "--keep must be between" in capsys.readouterr().err
