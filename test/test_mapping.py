@@ -10,7 +10,7 @@ from mapping_world import BUILDING, CAR, ROAD, drive, make_world, scan_from
 from scipy.spatial.transform import Rotation
 
 from semcal_ros.cloud import LabelledCloud
-from semcal_ros.io import kitti
+from semcal_ros.io import kitti, scene_scans
 from semcal_ros.io.ply import read_ply
 from semcal_ros.labels import LabelMapping
 from semcal_ros.mapping import (
@@ -152,22 +152,35 @@ def test_pairwise_icp_recovers_a_known_offset(world):
     assert rotation_deg(residual) < 0.05
 
 
-def test_build_map_refines_noisy_poses(world):
-    truth = drive(9, step=1.0, seed=1)
-    scans = [scan_from(world, p, 10 + i) for i, p in enumerate(truth)]
-    noisy = evaluation.perturb_poses(truth, 0.3, 1.0, seed=0)
-    result = build_map([ScanInput(s, p, 0.1 * i, f"s{i}") for i, (s, p) in
-                        enumerate(zip(scans, noisy))], MapBuildParams(voxel=0.1))
+def test_scene_pose_noise_is_refined(scene_factory, record_property):
+    """The synthetic scenes' pose_noise variant (smooth localisation error, here 10 cm / 0.5 deg
+    1-sigma): after refinement every pose is within 3 cm / 0.1 deg of the truth, up to the one
+    common rigid motion that no lidar-only method can observe (reported too)."""
+    scene = scene_factory("junction", 0, "pose_noise", scans=12, horizontal_step_deg=0.5,
+                          pose_noise_m=0.1, pose_noise_deg=0.5, write_bag=False)
+    given = scene_scans.open_scene_scans(scene)
+    truth = scene_scans.open_scene_scans(scene, true_poses=True).poses
+    items = [ScanInput((lambda i=i: given.scan(i)), given.poses[i], given.stamps[i], str(i))
+             for i in range(len(given))]
+    result = build_map(items, MapBuildParams())
     assert not result.skipped and all(p.accepted for p in result.pairs)
-    aligned = evaluation.remove_common_transform(result.refined_poses, truth)
-    t, r = evaluation.pose_errors(aligned, truth)
-    assert t.max() < 0.03 and r.max() < 0.1, (t, r)
-    before_t, _ = evaluation.pose_errors(evaluation.remove_common_transform(noisy, truth), truth)
-    assert np.median(before_t) > 0.2
+    figures = {}
+    for name, poses in (("given", given.poses), ("refined", result.refined_poses)):
+        t, r = evaluation.pose_errors(evaluation.remove_common_transform(poses, truth), truth)
+        t_raw, r_raw = evaluation.pose_errors(poses, truth)
+        figures[name] = (t.max(), r.max(), t_raw.max(), r_raw.max())
+        record_property(f"{name} max error cm/deg (common motion removed; raw)",
+                        [round(t.max() * 100, 2), round(r.max(), 3),
+                         round(t_raw.max() * 100, 2), round(r_raw.max(), 3)])
+    print("scene pose errors, max over scans (m, deg, common motion removed; raw m, deg):",
+          figures)
+    assert figures["given"][0] > 0.1  # the test is not trivially passed by the input poses
+    assert figures["refined"][0] <= 0.03 and figures["refined"][1] <= 0.1
     shift, angle = result.pose_changes()
-    assert np.median(shift) > 0.1 and np.median(angle) > 0.5  # ICP really moved the scans
-    # dynamic classes are gone, the rest of the world's classes remain
-    assert CAR not in result.map.label and {ROAD, BUILDING} <= set(result.map.label.tolist())
+    assert np.median(shift) > 0.03  # ICP really moved the scans
+    moving = np.arange(252, 260)
+    assert not np.isin(result.map.label, moving).any()  # the scene's moving actors are gone
+    assert {ROAD, BUILDING} <= set(result.map.label.tolist())
     assert {"filter", "icp", "merge", "load", "total"} <= set(result.timings)
 
 
@@ -262,18 +275,16 @@ def _alignment(above, poses):
 def test_kitti_refined_map_alignment_recovers_from_pose_noise(kitti_scans, record_property):
     seq, scans, above = kitti_scans
     noisy = evaluation.perturb_poses(seq.poses, 0.3, 1.0, seed=0)
+    result = build_map([ScanInput(s, p, t, str(i)) for i, (s, p, t) in
+                        enumerate(zip(scans, noisy, seq.stamps))], MapBuildParams())
     figures = {"true poses, no ICP": _alignment(above, seq.poses),
-               "perturbed 0.3 m / 1 deg, no ICP": _alignment(above, noisy)}
-    for name, poses in (("true", seq.poses), ("perturbed", noisy)):
-        result = build_map([ScanInput(s, p, t, str(i)) for i, (s, p, t) in
-                            enumerate(zip(scans, poses, seq.stamps))], MapBuildParams())
-        figures[f"{name} poses, ICP"] = _alignment(above, result.refined_poses)
+               "perturbed 0.3 m / 1 deg, no ICP": _alignment(above, noisy),
+               "perturbed poses, ICP": _alignment(above, result.refined_poses)}
     for name, value in figures.items():
         record_property(name, round(value, 4))
     print("KITTI 00 scans 0-5, median NN distance of above-ground points:",
           {k: f"{v * 100:.1f} cm" for k, v in figures.items()})
     assert figures["perturbed 0.3 m / 1 deg, no ICP"] > 1.3 * figures["true poses, no ICP"]
-    assert figures["perturbed poses, ICP"] <= 1.2 * figures["true poses, ICP"]
     assert figures["perturbed poses, ICP"] <= 1.2 * figures["true poses, no ICP"]
 
 
