@@ -86,33 +86,41 @@ class _Stage:
 
 
 class _Tracker:
-    """Counts evaluations, records history, reports progress, honours cancellation."""
+    """Counts evaluations, records history, reports progress, honours cancellation.
+
+    Progress carries the best loss and pose of the stage being run: losses of different stages
+    (resolutions) are not comparable, so a single running minimum would mislead.
+    """
 
     def __init__(self, progress: Callable[[Progress], None] | None,
-                 should_stop: Callable[[], bool] | None, interval: float = 0.2) -> None:
+                 should_stop: Callable[[], bool] | None, interval: float = 0.25) -> None:
         self.progress, self.should_stop, self.interval = progress, should_stop, interval
         self.evaluations = 0
         self.history: list[tuple[int, int, float]] = []
-        self.best_loss = np.inf
-        self.best_pose: Pose | None = None
         self.stage = "start"
+        self.stage_loss = np.inf
+        self.stage_pose: Pose | None = None
         self._last_report = 0.0
 
-    def record(self, run: int, stage: int, loss: float, pose: Pose, final_stage: bool) -> None:
+    def begin_stage(self, name: str) -> None:
+        self.stage, self.stage_loss, self.stage_pose = name, np.inf, None
+
+    def record(self, run: int, stage: int, loss: float, pose: Pose) -> None:
         if self.should_stop is not None and self.should_stop():
             raise Cancelled("calibration cancelled")
         self.evaluations += 1
         self.history.append((run, stage, loss))
-        if final_stage and loss < self.best_loss:
-            self.best_loss, self.best_pose = loss, pose
+        if loss < self.stage_loss:
+            self.stage_loss, self.stage_pose = loss, pose
         now = time.monotonic()
-        if self.progress is not None and now - self._last_report >= self.interval:
+        if now - self._last_report >= self.interval:
             self._last_report = now
             self.report()
 
     def report(self) -> None:
-        if self.progress is not None and self.best_pose is not None:
-            self.progress(Progress(self.stage, self.evaluations, float(self.best_loss), self.best_pose))
+        if self.progress is not None and self.stage_pose is not None:
+            self.progress(Progress(self.stage, self.evaluations, float(self.stage_loss),
+                                   self.stage_pose))
 
 
 class Registration:
@@ -182,30 +190,25 @@ class Registration:
         sch = self.params.schedule
         center = start.vector()
         n = len(self.free)
-        best_pose, best_loss, evals0 = start, np.inf, tracker.evaluations
-        last = len(sch.scales) - 1
-        for k in range(len(sch.scales)):
-            tracker.stage = f"{label}, stage {k + 1}/{last + 1} (1/{sch.scales[k]} resolution)"
-            stage_best = [np.inf, center]
+        evals0 = tracker.evaluations
+        n_stages = len(sch.scales)
+        for k in range(n_stages):
+            tracker.begin_stage(f"{label}, stage {k + 1}/{n_stages} (1/{sch.scales[k]} resolution)")
 
             def objective(s: np.ndarray, k: int = k, center: np.ndarray = center) -> float:
                 pose = self.pose_at(center, s)
                 value = self.loss(pose, k)
-                tracker.record(run_index, k, value, pose, final_stage=(k == last))
-                if value < stage_best[0]:
-                    stage_best[0] = value
-                    stage_best[1] = pose.vector()
+                tracker.record(run_index, k, value, pose)
                 return value
 
             simplex = _initial_simplex(n) * sch.simplex[k]
             minimize(objective, np.zeros(n), method="Nelder-Mead",
                      options={"initial_simplex": simplex, "xatol": sch.xatol,
                               "fatol": sch.fatol[k], "maxfev": sch.max_evaluations[k]})
-            center = stage_best[1]
-            best_loss = stage_best[0]
-            best_pose = Pose.from_vector(center)
+            center = tracker.stage_pose.vector()  # the best seen, not NM's last vertex
         tracker.report()
-        return RunResult(start, best_pose, float(best_loss), tracker.evaluations - evals0)
+        return RunResult(start, tracker.stage_pose, float(tracker.stage_loss),
+                         tracker.evaluations - evals0)
 
 
 def _initial_simplex(n: int) -> np.ndarray:
@@ -220,13 +223,13 @@ def _yaw_candidates(reg: Registration, initial: Pose, tracker: _Tracker) -> list
     sp = reg.params.search
     v = initial.vector()
     scored = []
-    tracker.stage = "yaw grid search"
+    tracker.begin_stage("yaw grid search")
     for yaw in np.arange(-180.0, 180.0, sp.yaw_search_step_deg):
         cand = v.copy()
         cand[5] = v[5] + np.radians(yaw)
         pose = Pose.from_vector(cand)
         value = reg.loss(pose, 0)
-        tracker.record(-1, 0, value, pose, final_stage=False)
+        tracker.record(-1, 0, value, pose)
         scored.append((value, yaw, pose))
     scored.sort(key=lambda item: item[0])
     return [pose for _, _, pose in scored[: sp.yaw_search_keep]]

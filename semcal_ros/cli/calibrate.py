@@ -46,8 +46,10 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--image is {rgb.shape[1]}x{rgb.shape[0]} but the label image is "
                          f"{labels.shape[1]}x{labels.shape[0]}")
 
-    bar = tqdm(total=None, unit="eval", disable=args.quiet, file=sys.stderr, dynamic_ncols=True,
-               bar_format="{desc} {n_fmt} evaluations [{elapsed}] {postfix}")
+    # disable=None: a bar on a terminal, none in logs (tqdm's own rule)
+    bar = tqdm(total=None, unit="eval", disable=True if args.quiet else None, file=sys.stderr,
+               dynamic_ncols=True, mininterval=0.5,
+               bar_format="{desc}: {n_fmt} evaluations [{elapsed}] {postfix}")
 
     def progress(p: Progress) -> None:
         bar.set_description_str(p.stage)

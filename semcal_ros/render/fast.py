@@ -11,6 +11,7 @@ as the reference does.
 from __future__ import annotations
 
 import math
+import os
 
 import numba
 import numpy as np
@@ -20,6 +21,10 @@ from semcal_ros.labels import INVALID
 from semcal_ros.render.prepare import CHUNK, PreparedMap
 from semcal_ros.render.reference import keys_to_labels
 from semcal_ros.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
+
+# OpenMP is in the numba wheel; without this numba first probes TBB and warns about an old one.
+if not os.environ.get("NUMBA_THREADING_LAYER"):
+    numba.config.THREADING_LAYER = "omp"
 
 _distort = numba.njit(cache=True, inline="always")(distort)
 
