@@ -275,22 +275,28 @@ def test_params_bad_value_is_named(ros_context):
 def _node_param_files():
     from semcal_ros.ros.nodes.cloud_segmenter import CloudSegmenterParams
     from semcal_ros.ros.nodes.image_segmenter import ImageSegmenterParams
+    from semcal_ros.ros.nodes.map_builder import MapBuilderNodeParams
     from semcal_ros.ros.replay import ReplayParams
 
     return [("bag_player", ReplayParams()), ("image_segmenter", ImageSegmenterParams()),
-            ("cloud_segmenter", CloudSegmenterParams())]
+            ("cloud_segmenter", CloudSegmenterParams()), ("map_builder", MapBuilderNodeParams())]
 
 
 @pytest.mark.parametrize("node,defaults", _node_param_files(), ids=lambda v: str(v)[:20])
 def test_config_file_matches_node_parameters(node, defaults):
-    """Every key of config/<node>.yaml is a parameter of the node, and every value fits it."""
+    """Every key of config/<node>.yaml is a parameter of the node, every value fits it, and
+    every parameter of the node itself is in the file (groups owned by library modules,
+    ``mapping.*`` and ``runner.*``, may gain fields the file does not list yet)."""
     from pathlib import Path
 
     from semcal_ros.config import apply_flat, dataclass_fields_flat, load_node_params
 
     path = Path(__file__).resolve().parents[1] / "config" / f"{node}.yaml"
     flat = load_node_params(path, node)
-    assert set(flat) == set(dataclass_fields_flat(defaults)), "config file and dataclass differ"
+    known = set(dataclass_fields_flat(defaults))
+    assert not set(flat) - known, f"unknown keys in {path.name}"
+    missing = {k for k in known - set(flat) if not k.startswith(("mapping.", "runner."))}
+    assert not missing, f"{path.name} does not list {sorted(missing)}"
     apply_flat(defaults, flat)  # raises on a value that does not fit
 
 

@@ -18,7 +18,7 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 
-from ros_helpers import RosGraph, publish_until, spin_until  # noqa: E402
+from ros_helpers import REPO, RosGraph, publish_until, spin_until  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -100,10 +100,11 @@ def test_bag_replay_delivers_everything_with_timing_and_clock(graph, tmp_path, s
     rate = 2.0
     if door == "node":
         player = graph.start_node("bag_player", params={"bag": str(bag), "rate": rate,
-                                                        "clock": True})
+                                                        "clock": True,
+                                                        "wait_for_subscribers": 15.0})
     else:
         player = graph.start("semcal_replay", "semcal", "replay", str(bag), "--rate", str(rate),
-                             "--clock")
+                             "--clock", "--wait", "15")
     try:
         spin_until(executor, lambda: len(got_clouds) == 30 and len(got_odom) == 30, 30,
                    "30 clouds and 30 odometry messages")
@@ -353,3 +354,94 @@ def test_calibrator_feedback_cancel_and_a_second_goal(graph, listener, demo_scen
     client.wait(listener.executor, third, timeout=10)
     assert third.status == "canceled" and time.monotonic() - t_cancel < 1.0
     assert cal.running()
+
+
+# --- the live pipeline -----------------------------------------------------------------------
+def bag_message_count(bag: Path, topic: str) -> int:
+    from semcal_ros.ros.replay import open_bag
+
+    reader = open_bag(bag)
+    try:
+        return sum(c.msgcount for c in reader.connections if c.topic == topic)
+    finally:
+        reader.close()
+
+
+def test_live_pipeline_calibrates_the_demo_scene(graph, listener, demo_scene, tmp_path):
+    """map_builder + calibrator, the scene's bag replayed, the action called from here."""
+    from std_srvs.srv import Trigger
+    from geometry_msgs.msg import TransformStamped
+    from sensor_msgs.msg import Image
+    from tf2_msgs.msg import TFMessage
+
+    from semcal_interfaces.srv import SaveMap
+    from semcal_ros.io.files import read_camera_info, read_pose
+    from semcal_ros.io.ply import read_ply
+    from semcal_ros.pose import rotation_error_deg, translation_error
+    from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
+
+    overlay_file = tmp_path / "overlay.png"
+    builder = graph.start_node("map_builder", params={"mapping.icp": False,
+                                                      "publish_period": 1.0},
+                               remap={"scan": "/lidar/points", "odom": "/lidar/odom"})
+    cal = graph.start_node("calibrator", params_file=REPO / "config" / "calibrator.yaml",
+                           params={"overlay_file": str(overlay_file)})
+    watcher = DiagnosticsWatcher(listener.node)
+    transforms = listener.subscribe(TransformStamped, "/calibration/transform", qos.latched())
+    static = listener.subscribe(TFMessage, "/tf_static", qos.latched())
+    overlays = listener.subscribe(Image, "/calibration/overlay", qos.latched())
+    client = CalibrateClient(listener.node)
+    builder.wait_for_log("ready", 30)
+    cal.wait_for_log("ready", 30)
+    client.wait_for_server(20)
+
+    scans = bag_message_count(demo_scene / "bag", "/lidar/points")
+    t_start = time.monotonic()
+    player = graph.start_node("bag_player", params={"bag": str(demo_scene / "bag"),
+                                                    "wait_for_subscribers": 15.0})
+    watcher.wait(listener.executor, lambda: watcher.map_ready(scans), 150,
+                 f"the calibrator to hold the map of all {scans} scans")
+    t_map = time.monotonic()
+    assert player.wait(10) == 0
+
+    initial = read_pose(demo_scene / "initial.yaml")
+    truth = read_pose(demo_scene / "ground_truth.yaml")
+    start_error = translation_error(initial, truth), rotation_error_deg(initial, truth)
+    out = client.call(listener.executor, make_goal(initial, verification_starts=1),
+                      timeout=240)
+    t_result = time.monotonic()
+    print(f"bag start -> map held {t_map - t_start:.1f} s -> result {t_result - t_map:.1f} s "
+          f"(total {t_result - t_start:.1f} s); start error {start_error[0]:.2f} m / "
+          f"{start_error[1]:.2f} deg; {out.result.message}")
+    assert out.status == "succeeded", out.result.message
+    assert out.feedback, "no feedback"
+    result = conv.pose_from_transform(out.result.transform)
+    assert translation_error(result, truth) < 0.05
+    assert rotation_error_deg(result, truth) < 0.1
+    assert out.result.transform.header.frame_id == "map"
+    assert out.result.transform.child_frame_id == "camera_optical"
+    assert out.result.evaluations > 0 and out.result.seconds > 0
+
+    spin_until(listener.executor, lambda: transforms and static and overlays, 10,
+               "the transform, /tf_static and the overlay")
+    assert translation_error(conv.pose_from_transform(transforms[-1]), result) < 1e-9
+    assert static[-1].transforms[0].child_frame_id == "camera_optical"
+    camera = read_camera_info(demo_scene / "camera_info.yaml")
+    assert (overlays[-1].width, overlays[-1].height) == (camera.width, camera.height)
+    assert overlay_file.is_file()
+
+    # the map builder's services
+    save = listener.node.create_client(SaveMap, "/map_builder/save_map")
+    reset = listener.node.create_client(Trigger, "/map_builder/reset")
+    assert save.wait_for_service(timeout_sec=10) and reset.wait_for_service(timeout_sec=10)
+    future = save.call_async(SaveMap.Request(path=str(tmp_path / "map.ply")))
+    listener.executor.spin_until_future_complete(future, timeout_sec=60)
+    saved = future.result()
+    assert saved.success and saved.points == int(watcher.get("map_builder")["map_points"])
+    assert len(read_ply(saved.path)) == saved.points
+    future = reset.call_async(Trigger.Request())
+    listener.executor.spin_until_future_complete(future, timeout_sec=30)
+    assert future.result().success
+    watcher.wait(listener.executor, lambda: watcher.get("calibrator").get("map_points") == "0",
+                 15, "the calibrator to receive the empty map after a reset")
+    assert builder.running() and cal.running()

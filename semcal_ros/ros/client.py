@@ -102,3 +102,41 @@ class CalibrateClient:
         future = outcome.goal_handle.cancel_goal_async()
         executor.spin_until_future_complete(future, timeout_sec=timeout)
         return future.result()
+
+
+class DiagnosticsWatcher:
+    """The latest /diagnostics key/values of each node (by name), for waiting on a node's state
+    (e.g. "the calibrator holds the map of all N scans") without guessing with sleeps."""
+
+    def __init__(self, node: Node) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        from semcal_ros.ros import qos
+
+        self.latest: dict[str, dict[str, str]] = {}
+        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_status,
+                                 qos.reliable(50))
+
+    def _on_status(self, msg: Any) -> None:
+        for status in msg.status:
+            values = {kv.key: kv.value for kv in status.values}
+            values["message"], values["level"] = status.message, str(status.level[0])
+            self.latest[status.hardware_id] = values
+
+    def get(self, node_name: str) -> dict[str, str]:
+        return self.latest.get(node_name, {})
+
+    def wait(self, executor: Any, condition: Callable[[], bool], timeout: float,
+             what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"timed out after {timeout:.0f} s waiting for {what}")
+            executor.spin_once(timeout_sec=0.05)
+
+    def map_ready(self, scans: int) -> bool:
+        """The map builder published a map of ``scans`` scans and the calibrator holds it."""
+        built = self.get("map_builder")
+        held = self.get("calibrator")
+        return (built.get("map_scans") == str(scans) and built.get("map_points", "0") != "0"
+                and held.get("map_points") == built.get("map_points"))

@@ -1,0 +1,327 @@
+"""``map_builder``: labelled lidar scans + poses -> the labelled map, published on ``map``.
+
+Inputs (relative names, remap them): ``scan`` (PointCloud2 with x, y, z and a ``label`` field of
+SemanticKITTI ids; unlabelled scans go through ``cloud_segmenter`` first), and the lidar's (or,
+with ``lidar_extrinsic``, the vehicle's) pose in the map frame on ``odom`` (nav_msgs/Odometry) or
+``pose`` (geometry_msgs/PoseStamped). A scan gets its pose by interpolating the pose stream at the
+scan's stamp, so a scan waits (bounded queue) until a pose at or after its stamp has arrived.
+
+The work happens in a thread of its own, so a slow registration never blocks the subscriptions:
+callbacks only convert and enqueue. The map (x, y, z, label) is published on ``map`` (transient
+local: a calibrator started later still gets it) at most every ``publish_period`` seconds while it
+changes. Services: ``~/save_map`` (semcal_interfaces/SaveMap: PLY file) and ``~/reset``
+(std_srvs/Trigger). A scan older than the previous one by more than ``time_jump`` seconds (a bag
+started over, a simulator reset) resets the map when ``reset_on_time_jump`` is set.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from std_srvs.srv import Trigger
+
+from semcal_interfaces.srv import SaveMap
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.mapping import MapBuildParams, ScanRejected, StreamingMapBuilder
+from semcal_ros.pose import Pose
+from semcal_ros.ros import conversions as conv
+from semcal_ros.ros import qos
+from semcal_ros.ros.diagnostics import Diagnostics, Level
+from semcal_ros.ros.params import declare_and_read
+from semcal_ros.ros.runtime import run_node
+
+
+@dataclass
+class MapBuilderNodeParams:
+    """The node's own parameters; the builder's are ``mapping.*`` (MapBuildParams)."""
+
+    map_frame: str = ""  # frame id of the published map (empty: the poses' frame)
+    # Lidar in the vehicle frame when poses are of the vehicle: x, y, z, qx, qy, qz, qw.
+    lidar_extrinsic: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+    require_labels: bool = True  # refuse scans without a 'label' field (segment them first)
+    publish_period: float = 2.0  # s between map publications while the map changes
+    queue_size: int = 100  # scans waiting for their pose or for the builder (oldest dropped)
+    reset_on_time_jump: bool = True
+    time_jump: float = 1.0  # s a scan may be older than the previous before it counts as a jump
+    save_path: str = "map.ply"  # default file of ~/save_map
+    diagnostics_period: float = 1.0  # s (0: off)
+    mapping: MapBuildParams = field(default_factory=MapBuildParams)
+
+    def __post_init__(self) -> None:
+        if len(self.lidar_extrinsic) != 7:
+            raise ValueError("lidar_extrinsic must be [x, y, z, qx, qy, qz, qw]")
+        if self.queue_size < 1 or self.publish_period <= 0:
+            raise ValueError("queue_size must be >= 1 and publish_period > 0")
+
+    def extrinsic(self) -> np.ndarray:
+        pose = Pose(np.array(self.lidar_extrinsic[:3]), np.array(self.lidar_extrinsic[3:]))
+        matrix = np.eye(4)
+        matrix[:3, :3], matrix[:3, 3] = pose.rotation, pose.translation
+        return matrix
+
+
+@dataclass
+class _Counts:
+    received: int = 0
+    accepted: int = 0
+    dropped_queue: int = 0  # queue overflow
+    dropped_no_pose: int = 0  # older than every pose kept
+    ignored_full: int = 0
+    resets: int = 0
+    rejected: dict[str, int] = field(default_factory=dict)
+
+
+class MapBuilderNode(Node):
+    def __init__(self) -> None:
+        super().__init__("map_builder")
+        self.opts = declare_and_read(self, MapBuilderNodeParams())
+        self.builder = StreamingMapBuilder(self.opts.mapping, self.opts.extrinsic())
+        self.counts = _Counts()
+        self.last_error = ""
+        self.frame = self.opts.map_frame
+        self._wake = threading.Condition()
+        self._scans: deque[tuple[float, LabelledCloud]] = deque()  # (stamp, cloud) in arrival
+        self._poses: deque[tuple[float, Pose]] = deque()
+        self._builder_lock = threading.Lock()
+        self._dirty = False
+        self._last_publish = 0.0
+        self._last_stamp: float | None = None
+        self._stop = False
+        self.published = (0, 0)  # (points, scans) of the last map published
+
+        overrides = qos.overridable()
+        inputs = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(PointCloud2, "scan", self._on_scan, qos.sensor(10),
+                                 callback_group=inputs, qos_overriding_options=overrides)
+        self.create_subscription(Odometry, "odom", self._on_pose, qos.sensor(50),
+                                 callback_group=inputs, qos_overriding_options=overrides)
+        self.create_subscription(PoseStamped, "pose", self._on_pose, qos.sensor(50),
+                                 callback_group=inputs, qos_overriding_options=overrides)
+        self.map_pub = self.create_publisher(PointCloud2, "map", qos.latched(),
+                                             qos_overriding_options=overrides)
+        services = MutuallyExclusiveCallbackGroup()
+        self.create_service(SaveMap, "~/save_map", self._on_save, callback_group=services)
+        self.create_service(Trigger, "~/reset", self._on_reset, callback_group=services)
+        self.diagnostics = Diagnostics(self, self._report, self.opts.diagnostics_period,
+                                       callback_group=MutuallyExclusiveCallbackGroup())
+        self._worker = threading.Thread(target=self._work, name="map_builder", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"ready: scans on '{self.resolve_topic_name('scan')}', poses on "
+            f"'{self.resolve_topic_name('odom')}' / '{self.resolve_topic_name('pose')}', map on "
+            f"'{self.resolve_topic_name('map')}' (voxel {self.opts.mapping.voxel} m, "
+            f"ICP {'on' if self.opts.mapping.icp else 'off'})")
+
+    def close(self) -> None:
+        with self._wake:
+            self._stop = True
+            self._wake.notify()
+        self._worker.join(timeout=5.0)
+
+    # --- callbacks: convert and enqueue only ------------------------------------------------
+    def _on_scan(self, msg: PointCloud2) -> None:
+        self.counts.received += 1
+        try:
+            cloud = conv.pointcloud2_to_cloud(msg, require_label=self.opts.require_labels)
+        except ValueError as exc:
+            self._rejected("fields", f"scan ignored: {exc}")
+            return
+        with self._wake:
+            self._scans.append((conv.stamp_to_seconds(msg.header.stamp), cloud))
+            while len(self._scans) > self.opts.queue_size:
+                self._scans.popleft()
+                self.counts.dropped_queue += 1
+            self._wake.notify()
+
+    def _on_pose(self, msg: Any) -> None:
+        try:
+            stamp, pose, frame = conv.stamped_pose(msg)
+        except ValueError as exc:
+            self._rejected("pose", f"pose ignored: {exc}")
+            return
+        if not self.frame:
+            self.frame = frame or "map"
+        with self._wake:
+            self._poses.append((stamp, pose))
+            self._wake.notify()
+
+    def _rejected(self, kind: str, text: str) -> None:
+        self.counts.rejected[kind] = self.counts.rejected.get(kind, 0) + 1
+        if text != self.last_error:
+            self.get_logger().warning(text)
+        self.last_error = text
+
+    # --- the worker -------------------------------------------------------------------------
+    def _work(self) -> None:
+        while True:
+            with self._wake:
+                self._wake.wait(timeout=0.2)
+                if self._stop:
+                    return
+                poses, self._poses = list(self._poses), deque()
+            try:
+                with self._builder_lock:
+                    for stamp, pose in poses:
+                        self._add_pose(stamp, pose)
+                    self._drain_scans()
+                self._maybe_publish()
+            except Exception as exc:  # noqa: BLE001 - keep building; say what went wrong
+                self._rejected("internal", f"map builder error: {type(exc).__name__}: {exc}")
+
+    def _jumped(self, stamp: float, previous: float | None) -> bool:
+        return previous is not None and stamp < previous - self.opts.time_jump
+
+    def _add_pose(self, stamp: float, pose: Pose) -> None:
+        span = self.builder.poses.span()
+        if span is not None and stamp < span[1]:
+            if not (self._jumped(stamp, span[1]) and self.opts.reset_on_time_jump):
+                self._rejected("pose_order", f"pose at {stamp:.3f} s is older than the "
+                                             f"previous one ({span[1]:.3f} s); ignored")
+                return
+            self._time_jump(stamp, span[1])
+        self.builder.add_pose(stamp, pose)
+
+    def _time_jump(self, stamp: float, previous: float) -> None:
+        """Time went back (a bag started over): forget the map, the poses and queued scans of
+        the old pass."""
+        self.get_logger().info(f"time jumped back {previous - stamp:.1f} s: map reset")
+        with self._wake:
+            self._scans = deque(item for item in self._scans
+                                if item[0] <= stamp + self.opts.time_jump)
+        self._reset_builder()
+
+    def _next_scan(self) -> tuple[float, LabelledCloud] | None:
+        """The oldest queued scan once its pose can be interpolated (or never will be)."""
+        with self._wake:
+            if not self._scans:
+                return None
+            stamp = self._scans[0][0]
+            span = self.builder.poses.span()
+            if not self._jumped(stamp, self._last_stamp) and (
+                    span is None or stamp > span[1] + self.opts.mapping.pose_tolerance):
+                return None  # its pose has not arrived yet
+            return self._scans.popleft()
+
+    def _drain_scans(self) -> None:
+        while (item := self._next_scan()) is not None:
+            stamp, cloud = item
+            if self._jumped(stamp, self._last_stamp):
+                if not self.opts.reset_on_time_jump:
+                    self._rejected("order", f"scan at {stamp:.3f} s is older than the previous "
+                                            f"({self._last_stamp:.3f} s); ignored")
+                    continue
+                self._time_jump(stamp, self._last_stamp)
+                with self._wake:
+                    self._scans.appendleft(item)  # waits for the new pass's poses
+                continue
+            if self.builder.is_full:
+                self.counts.ignored_full += 1
+                continue
+            span = self.builder.poses.span()
+            if stamp < span[0] - self.opts.mapping.pose_tolerance:
+                self.counts.dropped_no_pose += 1  # older than every pose kept
+                continue
+            try:
+                self.builder.add_scan(cloud, None, stamp)
+            except ScanRejected as exc:
+                self.builder.skipped.clear()  # counted here; the list would grow forever
+                self._rejected(exc.kind, str(exc))
+                continue
+            self._last_stamp = stamp
+            self.counts.accepted += 1
+            self._dirty = True
+
+    def _reset_builder(self) -> None:
+        self.builder.reset()
+        self._last_stamp = None
+        self.counts.resets += 1
+        self._dirty = True
+
+    def _maybe_publish(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if not (self._dirty or force) or (not force and now - self._last_publish
+                                          < self.opts.publish_period):
+            return
+        with self._builder_lock:
+            cloud = self.builder.current_map()
+            scans = self.builder.scan_count
+            self._dirty = False
+        header = conv.make_header(self.frame or "map", self.get_clock().now().to_msg())
+        self.map_pub.publish(conv.cloud_to_pointcloud2(cloud, header, extra_fields=False))
+        self._last_publish = now
+        self.published = (len(cloud), scans)
+
+    # --- services ---------------------------------------------------------------------------
+    def _on_save(self, request: SaveMap.Request, response: SaveMap.Response) -> SaveMap.Response:
+        from semcal_ros.io.ply import write_ply
+
+        path = Path(request.path or self.opts.save_path).expanduser().resolve()
+        try:
+            with self._builder_lock:
+                cloud = self.builder.finish().map if request.finish else \
+                    self.builder.current_map()
+            write_ply(path, cloud)
+        except (OSError, ValueError) as exc:
+            response.success, response.message = False, f"could not save the map: {exc}"
+            return response
+        if request.finish:
+            self._dirty = True
+        response.success, response.path, response.points = True, str(path), len(cloud)
+        response.message = f"saved {len(cloud)} points to {path}"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        with self._wake:
+            dropped = len(self._scans)
+            self._scans.clear()
+            self._poses.clear()
+        with self._builder_lock:
+            self._reset_builder()
+        self._maybe_publish(force=True)
+        response.success = True
+        response.message = f"map reset ({dropped} queued scans dropped)"
+        self.get_logger().info(response.message)
+        return response
+
+    # --- diagnostics ------------------------------------------------------------------------
+    def _report(self) -> tuple[Level, str, dict[str, Any]]:
+        c = self.counts
+        with self._wake:
+            queued = len(self._scans)
+        values = {
+            "scans_received": c.received, "scans_accepted": c.accepted,
+            "scans_queued": queued, "dropped_queue_full": c.dropped_queue,
+            "dropped_no_pose": c.dropped_no_pose, "ignored_map_full": c.ignored_full,
+            "resets": c.resets, "map_points": self.published[0],
+            "map_scans": self.published[1],
+            "poses": len(self.builder.poses), "last_error": self.last_error or "none",
+        }
+        values.update({f"rejected.{k}": v for k, v in c.rejected.items()})
+        if c.received and not c.accepted:
+            return Level.WARN, self.last_error or "no scan accepted yet (waiting for poses?)", \
+                values
+        if c.dropped_queue:
+            return Level.WARN, f"{c.dropped_queue} scans dropped (queue full)", values
+        return Level.OK, f"{c.accepted} scans in the map", values
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(MapBuilderNode, threads=3, args=args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
