@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pytest
@@ -244,24 +243,6 @@ def test_segmenter_without_model_exits_with_a_clear_error(graph):
 
 
 # --- calibrator ------------------------------------------------------------------------------
-def diagnostics_of(listener: Listener, node_name: str) -> Callable[[], dict | None]:
-    """A function returning the latest /diagnostics key/values (plus 'message') of a node."""
-    from diagnostic_msgs.msg import DiagnosticArray
-
-    latest: dict[str, dict] = {}
-
-    def on_status(msg: DiagnosticArray) -> None:
-        for status in msg.status:
-            if status.hardware_id == node_name:
-                values = {kv.key: kv.value for kv in status.values}
-                values["message"], values["level"] = status.message, status.level[0]
-                latest[node_name] = values
-
-    listener.node.create_subscription(DiagnosticArray, "/diagnostics", on_status,
-                                      qos.reliable(50))
-    return lambda: latest.get(node_name)
-
-
 def test_calibrator_answers_goals_it_cannot_run_and_stays_up(graph, listener):
     from semcal_ros.pose import Pose
     from semcal_ros.ros.client import CalibrateClient, make_goal
@@ -313,12 +294,16 @@ def camera_publishers(listener: Listener, scene: Path, period: float = 0.5) -> N
 
 def test_calibrator_feedback_cancel_and_a_second_goal(graph, listener, demo_scene):
     from semcal_ros.io.files import read_pose
-    from semcal_ros.ros.client import CalibrateClient, make_goal
+    from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
 
     cal = graph.start_node("calibrator", params={"map_file": str(demo_scene / "map.ply")})
-    diag = diagnostics_of(listener, "calibrator")
+    watcher = DiagnosticsWatcher(listener.node)
+
+    def diag() -> dict:
+        return watcher.get("calibrator")
+
     camera_publishers(listener, demo_scene)
-    spin_until(listener.executor, lambda: (diag() or {}).get("message") == "ready", 40,
+    spin_until(listener.executor, lambda: diag().get("message") == "ready", 40,
                "the calibrator to hold a map, a label image and CameraInfo")
     client = CalibrateClient(listener.node)
     client.wait_for_server(20)
@@ -345,7 +330,7 @@ def test_calibrator_feedback_cancel_and_a_second_goal(graph, listener, demo_scen
     assert cancel_seconds < 1.0
     # the node is free again; a cancel right away (while the engine prepares the map) is also
     # answered within a second
-    spin_until(listener.executor, lambda: (diag() or {}).get("state") == "idle", 10,
+    spin_until(listener.executor, lambda: diag().get("state") == "idle", 10,
                "the engine to stop")
     third = client.send(listener.executor, make_goal(initial))
     assert third.accepted

@@ -86,6 +86,7 @@ class _EngineJob:
         self.result: Any = None
         self.error: Exception | None = None
         self.done = threading.Event()
+        self.stop = threading.Event()  # set once the goal is answered as cancelled / aborted
         self.release_on_exit = False
         self.started = time.perf_counter()
         self.thread = threading.Thread(target=self._run, name="calibrate", daemon=True)
@@ -94,7 +95,8 @@ class _EngineJob:
         return time.perf_counter() - self.started
 
     def _should_stop(self) -> bool:
-        return self.handle.is_cancel_requested or not self.node.context.ok()
+        # is_cancel_requested turns False again once the goal is answered as cancelled
+        return self.stop.is_set() or self.handle.is_cancel_requested or not self.node.context.ok()
 
     def _run(self) -> None:
         from semcal_ros.optimize import Cancelled, calibrate
@@ -277,9 +279,10 @@ class CalibratorNode(Node):
                 self._feedback_handle = handle
             job.thread.start()
             while not job.done.wait(0.05):
-                if handle.is_cancel_requested:
-                    return self._cancelled(handle, job)
-                if not self.context.ok():
+                if handle.is_cancel_requested or not self.context.ok():
+                    job.stop.set()
+                    if handle.is_cancel_requested:
+                        return self._cancelled(handle, job)
                     return self._finish(handle, "abort", "the calibrator is shutting down")
             return self._answer(handle, job, inputs, request)
         finally:
