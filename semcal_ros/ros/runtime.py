@@ -15,18 +15,22 @@ from typing import Callable
 PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
 
-def fastdds_profile() -> Path | None:
-    """``config/fastdds.xml`` of a source checkout, else of the installed package's share."""
-    here = Path(__file__).resolve().parents[2] / "config" / "fastdds.xml"
+def config_file(name: str) -> Path | None:
+    """``config/<name>`` of a source checkout, else of the installed package's share."""
+    here = Path(__file__).resolve().parents[2] / "config" / name
     if here.is_file():
         return here
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        shared = Path(get_package_share_directory("semcal_ros")) / "config" / "fastdds.xml"
+        shared = Path(get_package_share_directory("semcal_ros")) / "config" / name
         return shared if shared.is_file() else None
     except (LookupError, OSError, ValueError):
         return None
+
+
+def fastdds_profile() -> Path | None:
+    return config_file("fastdds.xml")
 
 
 def use_default_fastdds_profile() -> None:
