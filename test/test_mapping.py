@@ -49,10 +49,10 @@ def test_voxel_downsample_majority_label():
     xyz = np.array([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3], [0.9, 0.9, 0.9],
                     [1.5, 0.5, 0.5], [1.6, 0.5, 0.5], [1.7, 0.5, 0.5],
                     [2.5, 0.5, 0.5], [2.6, 0.5, 0.5]])
-    label = np.array([ROAD, BUILDING, BUILDING, ROAD, 0, 0, CAR, ROAD, BUILDING], np.uint16)
+    label = np.array([ROAD, BUILDING, BUILDING, BUILDING, 0, 0, CAR, ROAD, BUILDING], np.uint16)
     out = filters.voxel_downsample(LabelledCloud(xyz, label), 1.0)
-    assert out.label.tolist() == [BUILDING, CAR, BUILDING]  # majority; labelled beats 0; tie
-    np.testing.assert_allclose(out.xyz[0], [0.25, 0.25, 0.25])  # centroid of the winners only
+    assert out.label.tolist() == [BUILDING, CAR, ROAD]  # majority; labelled beats 0; tie: min
+    np.testing.assert_allclose(out.xyz[0], [1.4 / 3] * 3)  # centroid of the winners only
     np.testing.assert_allclose(out.xyz[1], [1.7, 0.5, 0.5])
     plain = filters.voxel_downsample(LabelledCloud(xyz[:4]), 1.0)
     assert plain.label is None

@@ -17,30 +17,24 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from semcal_ros.cloud import LabelledCloud
+from semcal_ros.io.files import _load_yaml as load_yaml
+from semcal_ros.io.files import pose_from_dict
 from semcal_ros.io.ply import read_ply
 
 LIDAR_FRAMES = ("lidar", "velodyne", "lidar_link")
 
 
 def matrix_from_dict(data: dict, where: str) -> np.ndarray:
-    """4x4 from ``{translation: [x, y, z], rotation: [qx, qy, qz, qw]}``."""
+    """4x4 from ``{translation: [x, y, z], rotation: [qx, qy, qz, qw]}`` (checked as a Pose)."""
+    if not isinstance(data, dict) or "rotation" not in data:
+        raise ValueError(f"{where}: needs 'translation' and 'rotation' [qx, qy, qz, qw]")
     try:
-        t = np.asarray(data["translation"], dtype=float)
-        q = np.asarray(data["rotation"], dtype=float)
-    except KeyError as exc:
-        raise ValueError(f"{where}: no '{exc.args[0]}'") from None
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: translation/rotation must be lists of numbers") from None
-    if t.shape != (3,) or q.shape != (4,):
-        raise ValueError(f"{where}: translation must be [x, y, z], rotation [qx, qy, qz, qw]")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q))):
-        raise ValueError(f"{where}: pose contains NaN or infinite values")
-    norm = float(np.linalg.norm(q))
-    if abs(norm - 1.0) > 1e-3:
-        raise ValueError(f"{where}: rotation is not a unit quaternion (norm {norm:.6g})")
+        pose = pose_from_dict(data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: {exc}") from None
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat(q / norm).as_matrix()
-    out[:3, 3] = t
+    out[:3, :3] = pose.rotation
+    out[:3, 3] = pose.translation
     return out
 
 
@@ -74,14 +68,9 @@ def read_scan(path: str | Path) -> LabelledCloud:
 def read_scan_poses(path: str | Path) -> ScanPoses:
     """Parse ``poses.yaml`` (or ``poses_true.yaml``); scans are listed relative to its folder."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"scan poses file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML ({exc})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("scans"), list):
-        raise ValueError(f"{path}: expected a mapping with a 'scans' list")
+    data = load_yaml(path, "scan poses")
+    if not isinstance(data.get("scans"), list):
+        raise ValueError(f"{path}: expected a 'scans' list")
     child = str(data.get("child_frame_id", "lidar"))
     extrinsic = np.eye(4)
     if child not in LIDAR_FRAMES:

@@ -70,7 +70,7 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
     ``voxel_down_sample`` averages every attribute, which turns label ids into meaningless means.
     ``unlabeled`` (0) only wins a voxel in which no point has a class, so unlabelled scans (KITTI
     has labels for some scans only) fill gaps without overwriting classes; other ties go to the
-    larger id. Unlabelled clouds get plain centroids. Float extra fields (intensity, normal
+    smaller id (as in the scene generator's map). Unlabelled clouds get plain centroids. Float extra fields (intensity, normal
     components) are averaged over the same points as the centroid; other extras are dropped.
     """
     if voxel <= 0:
@@ -95,9 +95,9 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
                                         return_counts=True)
     group_voxel = groups // n_classes
     group_class = groups % n_classes
-    # rank within a voxel: labelled classes first, then votes, then the larger id
+    # rank within a voxel: labelled classes first, then votes, then the smaller id
     score = counts + (classes[group_class] != UNLABELED) * (len(xyz) + 1)
-    order = np.lexsort((group_class, score, group_voxel))
+    order = np.lexsort((-group_class, score, group_voxel))
     best = order[np.flatnonzero(np.diff(group_voxel[order], append=-1))]
     sums = np.stack([np.bincount(inverse, weights=xyz[:, i], minlength=len(groups))[best]
                      for i in range(3)], axis=1)

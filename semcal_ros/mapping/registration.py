@@ -30,8 +30,10 @@ class RegistrationParams:
 
     icp_voxels: tuple[float, ...] = (0.6, 0.3)  # voxel size of the clouds per ICP stage, metres
     max_correspondence: tuple[float, ...] = (1.2, 0.45)  # partner search distance per stage
-    max_iterations: int = 20  # per stage
-    max_source_points: int = 20000  # ICP moves a random subset of the source (0: all points)
+    max_iterations: int = 30  # per stage
+    relative_change: float = 1e-5  # a stage stops when fitness and rmse change less (1e-6
+    # crept on for 30 iterations on some pairs without changing the result)
+    max_source_points: int = 10000  # ICP moves a random subset of the source (0: all points)
     normal_radius_factor: float = 3.0  # normals from neighbours within this many voxels
     normal_max_nn: int = 20
     min_fitness: float = 0.2  # fraction of source points with a partner; less: edge dropped
@@ -45,6 +47,8 @@ class RegistrationParams:
             raise ValueError("icp_voxels and max_correspondence need one value per ICP stage")
         if min(self.icp_voxels) <= 0 or min(self.max_correspondence) <= 0:
             raise ValueError("ICP voxel sizes and correspondence distances must be positive")
+        if list(self.icp_voxels) != sorted(self.icp_voxels, reverse=True):
+            raise ValueError("icp_voxels must go from coarse to fine")
         if self.normal_radius_factor <= 0 or self.max_iterations < 1:
             raise ValueError("normal_radius_factor and max_iterations must be positive")
 
@@ -99,29 +103,45 @@ class RegistrationCloud:
         return self._tensors[key]
 
 
+def _voxel_normals(xyz: np.ndarray, normals: np.ndarray, voxel: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel centroids with averaged, renormalised normals; voxels whose normals cancel (both
+    sides of a thin wall, sharp edges) are dropped."""
+    merged = voxel_downsample(LabelledCloud(xyz, None, {"nx": normals[:, 0], "ny": normals[:, 1],
+                                                        "nz": normals[:, 2]}), voxel)
+    n = np.stack([merged.extra["nx"], merged.extra["ny"], merged.extra["nz"]], axis=1)
+    length = np.linalg.norm(n, axis=1)
+    keep = length > 0.5
+    return merged.xyz[keep], n[keep] / length[keep, None]
+
+
 def registration_cloud(xyz: np.ndarray, viewpoint: np.ndarray, params: RegistrationParams
                        ) -> RegistrationCloud:
     """Prepare one scan (map frame, seen from ``viewpoint``) for :func:`pairwise_icp`.
 
-    The grid is the numpy voxel filter (faster here than Open3D's tensor grid); normals come
-    from Open3D's neighbour search within ``normal_radius_factor`` voxels and are turned
-    towards the sensor, so that merged clouds can average them (:func:`merge_registration`)
-    instead of estimating them again on ever larger clouds.
+    Normals are searched once, on the finest stage (Open3D's neighbour search within
+    ``normal_radius_factor`` voxels, numpy voxel grid: faster here than Open3D's tensor grid),
+    and turned towards the sensor; coarser stages and merged clouds (:func:`merge_registration`)
+    average them instead of searching again on ever larger clouds.
     """
     xyz = np.asarray(xyz, np.float64)
+    finest = params.icp_voxels[-1]
+    pts = voxel_downsample(LabelledCloud(xyz), finest).xyz if len(xyz) else np.zeros((0, 3))
+    nrm = np.zeros_like(pts)
+    if len(pts) >= 3:
+        pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(pts.astype(np.float32)))
+        pcd.estimate_normals(max_nn=params.normal_max_nn,
+                             radius=params.normal_radius_factor * finest)
+        nrm = pcd.point.normals.numpy().astype(np.float64)
+        towards = np.einsum("ij,ij->i", np.asarray(viewpoint, float) - pts, nrm)
+        nrm[towards < 0] *= -1.0
     points, normals = [], []
-    for voxel in params.icp_voxels:
-        pts = voxel_downsample(LabelledCloud(xyz), voxel).xyz if len(xyz) else np.zeros((0, 3))
-        nrm = np.zeros_like(pts)
-        if len(pts) >= 3:
-            pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(pts.astype(np.float32)))
-            pcd.estimate_normals(max_nn=params.normal_max_nn,
-                                 radius=params.normal_radius_factor * voxel)
-            nrm = pcd.point.normals.numpy().astype(np.float64)
-            towards = np.einsum("ij,ij->i", np.asarray(viewpoint, float) - pts, nrm)
-            nrm[towards < 0] *= -1.0
-        points.append(pts)
-        normals.append(nrm)
+    for voxel in params.icp_voxels[:-1]:
+        p, n = _voxel_normals(pts, nrm, voxel) if len(pts) else (pts, nrm)
+        points.append(p)
+        normals.append(n)
+    points.append(pts)
+    normals.append(nrm)
     center = xyz.mean(axis=0) if len(xyz) else np.zeros(3)
     return RegistrationCloud(points, normals, center)
 
@@ -134,24 +154,16 @@ def _rotation_only(matrix: np.ndarray) -> np.ndarray:
 
 def merge_registration(clouds: list[RegistrationCloud], corrections: list[np.ndarray],
                        weights: list[float], params: RegistrationParams) -> RegistrationCloud:
-    """The registration cloud of a merged group, from its members' (no new normal search).
-
-    Members are moved by their corrections, stacked and voxel-averaged per stage; normals are
-    averaged and renormalised, and dropped where opposite normals cancel (both sides of a thin
-    wall in one voxel).
-    """
+    """The registration cloud of a merged group, from its members' (no new normal search):
+    members moved by their corrections, stacked and voxel-averaged per stage."""
     points, normals = [], []
     for stage, voxel in enumerate(params.icp_voxels):
         xyz = np.concatenate([apply_rigid(c.points[stage], m) for c, m in zip(clouds, corrections)])
         nrm = np.concatenate([apply_rigid(c.normals[stage], _rotation_only(m))
                               for c, m in zip(clouds, corrections)])
-        merged = voxel_downsample(LabelledCloud(xyz, None, {"nx": nrm[:, 0], "ny": nrm[:, 1],
-                                                            "nz": nrm[:, 2]}), voxel)
-        n = np.stack([merged.extra["nx"], merged.extra["ny"], merged.extra["nz"]], axis=1)
-        length = np.linalg.norm(n, axis=1)
-        keep = length > 0.5
-        points.append(merged.xyz[keep])
-        normals.append(n[keep] / length[keep, None])
+        p, n = _voxel_normals(xyz, nrm, voxel) if len(xyz) else (xyz, nrm)
+        points.append(p)
+        normals.append(n)
     centers = [apply_rigid(c.center[None], m)[0] for c, m in zip(clouds, corrections)]
     return RegistrationCloud(points, normals, np.average(centers, axis=0, weights=weights))
 
@@ -171,7 +183,8 @@ def pairwise_icp(source: RegistrationCloud, target: RegistrationCloud,
     if len(source) < 3 or len(target) < 3:
         return PairResult(source_id, target_id, np.eye(4), np.zeros((6, 6)), 0.0,
                           float("inf"), False, "too few points")
-    criteria = _treg.ICPConvergenceCriteria(relative_fitness=1e-6, relative_rmse=1e-6,
+    criteria = _treg.ICPConvergenceCriteria(relative_fitness=params.relative_change,
+                                            relative_rmse=params.relative_change,
                                             max_iteration=params.max_iterations)
     method = _treg.TransformationEstimationPointToPlane()
     result = None
