@@ -16,6 +16,7 @@ so the refined pose of scan s is ``correction[s] @ prior[s]``.
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
@@ -30,6 +31,7 @@ from semcal_ros.mapping.registration import (
     registration_cloud, rotation_deg)
 
 GROUP_SIZE = 3  # the paper's groups of three neighbouring scans
+MAX_SKIPPED = 1000
 
 
 @dataclass
@@ -141,10 +143,13 @@ class StreamingMapBuilder:
         self._priors: list[np.ndarray] = []
         self._corrections: list[np.ndarray] = []
         self._pairs: list[PairResult] = []
-        self.skipped: list[tuple[str, str]] = []
+        # (scan id, reason) of refused scans; the newest MAX_SKIPPED only, so a live stream of
+        # bad scans cannot grow memory
+        self.skipped: deque[tuple[str, str]] = deque(maxlen=MAX_SKIPPED)
         self.timings = {"filter": 0.0, "icp": 0.0, "merge": 0.0}
         self.points_in = 0
         self.points_kept = 0
+        self._offered = 0  # add_scan calls, accepted or not (default scan ids)
         self.poses.clear()
 
     @property
@@ -174,7 +179,8 @@ class StreamingMapBuilder:
         time, out of time order, empty after filtering, map full); nothing is changed then.
         """
         t0 = time.perf_counter()
-        scan_id = str(len(self._ids) + len(self.skipped)) if scan_id is None else str(scan_id)
+        self._offered += 1
+        scan_id = str(self._offered - 1) if scan_id is None else str(scan_id)
         try:
             return self._add(cloud, pose, float(stamp), scan_id, t0)
         except ScanRejected as exc:
