@@ -34,6 +34,8 @@ from semcal_ros.scenes.shading import shade, to_image
 from semcal_ros.scenes.voxel import voxel_majority
 
 VARIANTS = ("ideal", "noisy_labels", "dynamic", "sparse", "pose_noise")
+#: pose_noise only: the map accumulated with the perturbed poses (map.ply uses the true ones).
+NOISY_POSE_MAP = "map_noisy_poses.ply"
 GENERATOR_VERSION = 1
 LIDAR_HEIGHT = 3.0  # metres above the road
 
@@ -112,6 +114,34 @@ class ViewCrop:
         r2 = x * x + y * y
         off = np.abs((np.arctan2(y, x) - self.yaw + np.pi) % (2 * np.pi) - np.pi)
         return (r2 <= self.radius ** 2) & ((off <= self.half_angle) | (r2 <= 100.0))
+
+
+class MapAccumulator:
+    """Scans placed with their poses, cropped to the camera's view, voxel-downsampled at the end.
+
+    Works relative to the camera centre in float32 (small numbers) and keeps dynamic points:
+    removing them is the map consumer's job.
+    """
+
+    def __init__(self, crop: ViewCrop, origin: np.ndarray, scan_crop: float, voxel: float) -> None:
+        self.crop, self.origin = crop, np.asarray(origin, float)
+        self.scan_crop, self.voxel = scan_crop, voxel
+        self._xyz: list[np.ndarray] = []
+        self._labels: list[np.ndarray] = []
+
+    def add(self, xyz: np.ndarray, label: np.ndarray, rotation: np.ndarray,
+            position: np.ndarray) -> None:
+        near = np.einsum("ij,ij->i", xyz, xyz) <= self.scan_crop ** 2
+        rel = rotate(xyz[near], rotation) + (position - self.origin).astype(np.float32)
+        inside = self.crop.contains(rel)
+        self._xyz.append(rel[inside])
+        self._labels.append(label[near][inside])
+
+    def cloud(self) -> LabelledCloud:
+        xyz, label = voxel_majority(np.concatenate(self._xyz), np.concatenate(self._labels),
+                                    self.voxel)
+        self._xyz, self._labels = [], []
+        return LabelledCloud(xyz + self.origin, label)
 
 
 def kitti_to_train_id() -> np.ndarray:
@@ -310,8 +340,13 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
         bag = SceneBagWriter(out / "bag", CameraFrame(camera, rgb, labels), options.camera_period)
     rng_lidar = _rng(seed, kind, "lidar")
     view_crop = ViewCrop(truth, options.map_radius, options.map_view_margin_deg)
+    accumulators = {"map.ply": MapAccumulator(view_crop, truth.translation, options.scan_crop,
+                                              options.voxel)}
+    if variant == "pose_noise":  # what accumulating with the perturbed poses would give
+        accumulators[NOISY_POSE_MAP] = MapAccumulator(view_crop, truth.translation,
+                                                      options.scan_crop, options.voxel)
     directions = spec.directions()
-    map_xyz, map_labels, files = [], [], []
+    files = []
     scan_points = 0
     try:
         for i in tqdm(range(options.scans), desc=f"{kind}/{variant} scans", unit="scan",
@@ -326,11 +361,10 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
             if bag is not None:
                 bag.add_scan(float(stamps[i]), reported_pos[i], reported_q[i], xyz, intensity,
                              label)
-            near = np.einsum("ij,ij->i", xyz, xyz) <= options.scan_crop ** 2
-            world_xyz = rotate(xyz[near], rot) + (positions[i] - truth.translation).astype(np.float32)
-            inside = view_crop.contains(world_xyz)
-            map_xyz.append(world_xyz[inside])
-            map_labels.append(label[near][inside])
+            accumulators["map.ply"].add(xyz, label, rot, positions[i])
+            if NOISY_POSE_MAP in accumulators:
+                accumulators[NOISY_POSE_MAP].add(
+                    xyz, label, Rotation.from_quat(reported_q[i]).as_matrix(), reported_pos[i])
             scan_points += len(xyz)
     finally:
         if bag is not None:
@@ -340,12 +374,12 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
         _poses_yaml(scan_dir / "poses_true.yaml", files, stamps, positions, quats)
     timing["lidar"] = time.perf_counter() - t0
 
-    # map from the true poses
+    # map from the true poses (and, for pose_noise, from the perturbed ones)
     t0 = time.perf_counter()
-    xyz, label = voxel_majority(np.concatenate(map_xyz), np.concatenate(map_labels), options.voxel)
-    del map_xyz, map_labels
-    map_cloud = LabelledCloud(xyz + truth.translation, label)
+    map_cloud = accumulators["map.ply"].cloud()
     write_ply(out / "map.ply", map_cloud)
+    if NOISY_POSE_MAP in accumulators:
+        write_ply(out / NOISY_POSE_MAP, accumulators[NOISY_POSE_MAP].cloud())
     timing["map"] = time.perf_counter() - t0
     timing["total"] = time.perf_counter() - t_start
 
