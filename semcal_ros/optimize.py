@@ -83,6 +83,7 @@ class _Stage:
     splat_lambda: float
     radius_max: float
     bounds: np.ndarray
+    depth_falloff: float
 
 
 class _Tracker:
@@ -146,6 +147,7 @@ class Registration:
         aligned_target = mapping.map_image(target)
         if np.all(aligned_target == INVALID):
             raise ValueError("label image has no pixel of a class the map can match")
+        self.splat_lambda = params.render.splat_lambda_for(self.pmap.point_spacing(), camera.fx)
         self.stages = [self._stage(aligned_target, camera, s) for s in range(len(params.schedule.scales))]
         # free parameters (x, y, z, [roll], pitch, yaw) and their search bounds
         sp = params.search
@@ -161,9 +163,13 @@ class Registration:
         off = factor // 2
         target = np.ascontiguousarray(aligned_target[off::factor, off::factor][:cam.height, :cam.width])
         radius_max = max(1.0, rp.radius_max / factor)
+        pmap = self.pmap.subset(sch.point_fractions[index])
+        # discs grow with the point spacing of the thinned map, as if it were the full map
+        thinning = np.sqrt(len(self.pmap) / len(pmap))
         return _Stage(
-            pmap=self.pmap.subset(sch.point_fractions[index]), camera=cam,
-            loss=LabelLoss(target, self.params.loss), splat_lambda=rp.splat_lambda / factor,
+            pmap=pmap, camera=cam, loss=LabelLoss(target, self.params.loss),
+            splat_lambda=self.splat_lambda / factor * thinning,
+            depth_falloff=rp.depth_falloff if factor == 1 else rp.depth_falloff_coarse,
             radius_max=radius_max, bounds=np.asarray(cam.normalized_bounds(margin_px=radius_max)),
         )
 
@@ -171,7 +177,7 @@ class Registration:
         st = self.stages[stage]
         rp = self.params.render
         view = make_view(st.camera, pose, st.pmap.origin, st.splat_lambda, st.radius_max,
-                         rp.near, rp.far, st.bounds, rp.depth_falloff, rp.core_fraction)
+                         rp.near, rp.far, st.bounds, st.depth_falloff, rp.core_fraction)
         return render(st.pmap, view)
 
     def loss(self, pose: Pose, stage: int = -1) -> float:
@@ -186,29 +192,43 @@ class Registration:
         return Pose.from_vector(v)
 
     def run(self, start: Pose, tracker: _Tracker, run_index: int, label: str) -> RunResult:
-        """The coarse-to-fine schedule from one start."""
+        """The coarse-to-fine schedule from one start, then the paper's restarts of the last
+        stage from its own result while they still lower the loss."""
         sch = self.params.schedule
         center = start.vector()
-        n = len(self.free)
         evals0 = tracker.evaluations
         n_stages = len(sch.scales)
         for k in range(n_stages):
             tracker.begin_stage(f"{label}, stage {k + 1}/{n_stages} (1/{sch.scales[k]} resolution)")
-
-            def objective(s: np.ndarray, k: int = k, center: np.ndarray = center) -> float:
-                pose = self.pose_at(center, s)
-                value = self.loss(pose, k)
-                tracker.record(run_index, k, value, pose)
-                return value
-
-            simplex = _initial_simplex(n) * sch.simplex[k]
-            minimize(objective, np.zeros(n), method="Nelder-Mead",
-                     options={"initial_simplex": simplex, "xatol": sch.xatol,
-                              "fatol": sch.fatol[k], "maxfev": sch.max_evaluations[k]})
-            center = tracker.stage_pose.vector()  # the best seen, not NM's last vertex
+            center = self._nelder_mead(k, center, tracker, run_index)
+        last = n_stages - 1
+        name = tracker.stage
+        for r in range(sch.final_restarts):
+            before = tracker.stage_loss
+            tracker.stage = f"{name}, restart {r + 1}"  # same stage: its best carries over
+            center = self._nelder_mead(last, center, tracker, run_index)
+            if before - tracker.stage_loss <= sch.fatol[last]:
+                break
         tracker.report()
         return RunResult(start, tracker.stage_pose, float(tracker.stage_loss),
                          tracker.evaluations - evals0)
+
+    def _nelder_mead(self, k: int, center: np.ndarray, tracker: _Tracker, run_index: int) -> np.ndarray:
+        """One Nelder-Mead search of stage ``k`` around ``center``; returns the best pose seen."""
+        sch = self.params.schedule
+
+        def objective(s: np.ndarray) -> float:
+            pose = self.pose_at(center, s)
+            value = self.loss(pose, k)
+            tracker.record(run_index, k, value, pose)
+            return value
+
+        n = len(self.free)
+        minimize(objective, np.zeros(n), method="Nelder-Mead",
+                 options={"initial_simplex": _initial_simplex(n) * sch.simplex[k],
+                          "xatol": sch.xatol, "fatol": sch.fatol[k],
+                          "maxfev": sch.max_evaluations[k]})
+        return tracker.stage_pose.vector()  # the best seen, not Nelder-Mead's last vertex
 
 
 def _initial_simplex(n: int) -> np.ndarray:
@@ -258,7 +278,7 @@ def calibrate(map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel,
         index = len(runs)
         runs.append(reg.run(start, tracker, index, f"verification {j + 1}/{vp.starts}"))
     best = min(runs, key=lambda r: r.loss)
-    accepted = [r for r in runs if r.loss <= best.loss * (1.0 + vp.loss_margin)]
+    accepted = [r for r in runs if r.loss <= best.loss * (1.0 + vp.loss_margin) + vp.loss_margin_abs]
     dt = np.array([translation_error(r.pose, best.pose) for r in accepted])
     dr = np.array([rotation_error_deg(r.pose, best.pose) for r in accepted])
     return CalibrationResult(

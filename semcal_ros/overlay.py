@@ -20,8 +20,9 @@ def render_map_labels(map_cloud: LabelledCloud, camera: CameraModel, pose: Pose,
     """Aligned label image of the map seen from ``pose`` at full resolution."""
     rp = params or RenderParams()
     pmap = prepare_map(map_cloud, mapping, center=pose.translation, radius=rp.crop_radius or None)
-    view = make_view(camera, pose, pmap.origin, rp.splat_lambda, rp.radius_max, rp.near, rp.far,
-                     depth_falloff=rp.depth_falloff)
+    splat_lambda = rp.splat_lambda_for(pmap.point_spacing(), camera.fx)
+    view = make_view(camera, pose, pmap.origin, splat_lambda, rp.radius_max, rp.near, rp.far,
+                     depth_falloff=rp.depth_falloff, core_fraction=rp.core_fraction)
     return render(pmap, view)
 
 

@@ -14,13 +14,28 @@ from semcal_ros.loss import LossParams
 
 @dataclass(frozen=True)
 class RenderParams:
-    splat_lambda: float = 32.0  # disc radius in px = splat_lambda / distance (full resolution)
+    splat_lambda: float = 0.0  # disc radius px = splat_lambda / distance m; 0 = from the map
+    splat_scale: float = 1.5  # with splat_lambda 0: disc radius = splat_scale x point spacing
     radius_max: float = 8.0  # px, full resolution
-    depth_falloff: float = 0.05  # depth factor at a disc's rim: nearest centre wins within a surface
+    depth_falloff: float = 0.3  # depth factor at a disc's rim: nearest centre wins within a surface
+    depth_falloff_coarse: float = 0.05  # the same for reduced-resolution stages (smoother basin)
     core_fraction: float = 1.0  # share of the disc radius that carries the label (rim: depth only)
     near: float = 0.5  # m
     far: float = 150.0  # m
     crop_radius: float = 120.0  # m around the initial camera position; 0 keeps the whole map
+
+
+    def splat_lambda_for(self, point_spacing_m: float, focal_px: float) -> float:
+        """The disc size: given, or one that closes the gaps between neighbouring points.
+
+        The paper tuned lambda by eye until a rendered view looked as dense as the target; a
+        disc of ``splat_scale`` times the map's median nearest-neighbour gap does that for any
+        map and camera (lidar maps are anisotropic, so the gap between scan lines is larger than
+        that median); much larger discs overshoot outlines and bias the pose.
+        """
+        if self.splat_lambda > 0:
+            return self.splat_lambda
+        return self.splat_scale * focal_px * max(point_spacing_m, 1e-3)
 
 
 @dataclass(frozen=True)
@@ -50,6 +65,7 @@ class ScheduleParams:
     fatol: tuple[float, ...] = (1e-4, 1e-4, 1e-6)  # the paper's tolerances, on the mean loss
     max_evaluations: tuple[int, ...] = (500, 200, 150)
     xatol: float = 1e-3  # in units of the bounds
+    final_restarts: int = 2  # the last stage again from its result while that lowers the loss
 
     def __post_init__(self) -> None:
         n = len(self.scales)
@@ -62,7 +78,8 @@ class ScheduleParams:
 class VerificationParams:
     starts: int = 10  # extra runs from noisy initial guesses
     noise: float = 0.5  # uniform noise of the starts, as a fraction of the search bounds
-    loss_margin: float = 0.05  # a run is accepted when its loss <= best * (1 + margin)
+    loss_margin: float = 0.05  # a run is accepted when its loss <= best * (1 + margin) + abs
+    loss_margin_abs: float = 1e-4  # (a purely relative margin rejects everything near loss 0)
 
 
 @dataclass(frozen=True)

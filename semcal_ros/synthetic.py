@@ -14,6 +14,7 @@ import numpy as np
 from semcal_ros.camera import CameraModel
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.labels import KITTI_ID, SKY
+from semcal_ros.params import RenderParams
 from semcal_ros.pose import Pose
 from semcal_ros.render import make_view, prepare_map
 from semcal_ros.render.reference import render
@@ -110,10 +111,13 @@ def target_image(cam: CameraModel, pose: Pose = GROUND_TRUTH,
     cloud rendered as the calibrator renders it, so the loss is exactly zero at ``pose`` (a test
     of the optimiser alone)."""
     if world is None:
-        cloud, lam, radius_max, falloff = street_world(step=0.04, seed=99), 20.0, 6.0, 0.3
+        cloud, rp = street_world(step=0.04, seed=99), RenderParams(splat_lambda=20.0, radius_max=6.0,
+                                                                   depth_falloff=0.3, core_fraction=1.0)
     else:
-        cloud, lam, radius_max, falloff = world, 32.0, 8.0, 0.05
+        cloud, rp = world, RenderParams()
     pmap = prepare_map(cloud, center=pose.translation)
-    labels = render(pmap, make_view(cam, pose, pmap.origin, lam, radius_max, depth_falloff=falloff))
+    splat_lambda = rp.splat_lambda_for(pmap.point_spacing(), cam.fx)
+    labels = render(pmap, make_view(cam, pose, pmap.origin, splat_lambda, rp.radius_max,
+                                    depth_falloff=rp.depth_falloff, core_fraction=rp.core_fraction))
     labels[labels == 255] = SKY
     return labels

@@ -18,6 +18,8 @@ from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world, target_imag
 
 INITIAL = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [1.8, -1.5, 1.2],
                                  GROUND_TRUTH.body_rpy_deg() + [0.0, -3.5, 4.0])
+NEAR = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.4, -0.3, 0.2],
+                              GROUND_TRUTH.body_rpy_deg() + [0.0, -1.0, 1.0])
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +68,7 @@ def case(tmp_path_factory, world, target):
     ply.write_ply(d / "map.ply", world)
     files.write_label_image(d / "labels.png", target)
     files.write_camera_info(d / "camera_info.yaml", camera())
-    files.write_pose(d / "initial.yaml", INITIAL)
+    files.write_pose(d / "initial.yaml", NEAR)  # the CLI's plumbing, not the basin, is tested here
     (d / "fast.yaml").write_text(yaml.safe_dump(
         {"calibrator": {"ros__parameters": {"verification": {"starts": 1}}}}))
     return d

@@ -29,6 +29,17 @@ class PreparedMap:
     def __len__(self) -> int:
         return len(self.label)
 
+    def point_spacing(self, sample: int = 20_000) -> float:
+        """Median distance from a point to its nearest neighbour (m), from an even sample."""
+        from scipy.spatial import cKDTree
+
+        if len(self) < 2:
+            return 0.0
+        step = max(1, len(self) // sample)
+        tree = cKDTree(self.xyz)
+        dist, _ = tree.query(self.xyz[::step], k=2)
+        return float(np.median(dist[:, 1]))
+
     def subset(self, fraction: float) -> "PreparedMap":
         """Every k-th point along the Morton curve: an evenly thinned map for coarse stages."""
         step = max(1, int(round(1.0 / fraction))) if fraction > 0 else 1
