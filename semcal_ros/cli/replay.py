@@ -19,6 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="play only these topics")
     p.add_argument("--wait", type=float, default=2.0, metavar="S",
                    help="seconds to wait for subscribers before playing (default 2)")
+    p.add_argument("--delay", type=float, default=1.0, metavar="S",
+                   help="seconds between subscribers appearing and the first message "
+                        "(default 1: they need a moment to match the player)")
     p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO",
                    help="rename a topic, e.g. /lidar/points:=/points (repeatable)")
     p.set_defaults(func=run)
@@ -33,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from semcal_ros.ros.runtime import use_default_fastdds_profile
 
     params = ReplayParams(bag=args.bag, rate=args.rate, clock=args.clock, loop=args.loop,
-                          topics=tuple(args.topics), wait_for_subscribers=args.wait)
+                          topics=tuple(args.topics), wait_for_subscribers=args.wait,
+                          start_delay=args.delay)
     use_default_fastdds_profile()
     ros_args = []
     for rule in args.remap:

@@ -131,7 +131,9 @@ class DiagnosticsWatcher:
         deadline = time.monotonic() + timeout
         while not condition():
             if time.monotonic() > deadline:
-                raise TimeoutError(f"timed out after {timeout:.0f} s waiting for {what}")
+                seen = "; ".join(f"{name}: {values}" for name, values in self.latest.items())
+                raise TimeoutError(f"timed out after {timeout:.0f} s waiting for {what} "
+                                   f"(last diagnostics: {seen or 'none'})")
             executor.spin_once(timeout_sec=0.05)
 
     def map_ready(self, scans: int) -> bool:

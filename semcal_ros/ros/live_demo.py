@@ -76,7 +76,7 @@ def run_live(opts: DemoOptions) -> int:
               f"only; logs in {graph.log_dir})")
         builder = graph.start_node(
             "map_builder", params_file=config_file("map_builder.yaml"),
-            params={"mapping.icp": False, "publish_period": 1.0,
+            params={"mapping.icp": False, "publish_period": 1.0, "queue_size": 100,
                     "save_path": str(out / "map.ply")},
             remap={"scan": SCAN_TOPIC, "odom": ODOM_TOPIC})
         calibrator = graph.start_node(

@@ -33,7 +33,6 @@ from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 
 from semcal_interfaces.srv import SaveMap
-from semcal_ros.cloud import LabelledCloud
 from semcal_ros.mapping import MapBuildParams, ScanRejected, StreamingMapBuilder
 from semcal_ros.pose import Pose
 from semcal_ros.ros import conversions as conv
@@ -52,7 +51,7 @@ class MapBuilderNodeParams:
     lidar_extrinsic: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
     require_labels: bool = True  # refuse scans without a 'label' field (segment them first)
     publish_period: float = 2.0  # s between map publications while the map changes
-    queue_size: int = 100  # scans waiting for their pose or for the builder (oldest dropped)
+    queue_size: int = 50  # scans waiting for their pose or for the builder (oldest dropped)
     reset_on_time_jump: bool = True
     time_jump: float = 1.0  # s a scan may be older than the previous before it counts as a jump
     save_path: str = "map.ply"  # default file of ~/save_map
@@ -92,7 +91,9 @@ class MapBuilderNode(Node):
         self.last_error = ""
         self.frame = self.opts.map_frame
         self._wake = threading.Condition()
-        self._scans: deque[tuple[float, LabelledCloud]] = deque()  # (stamp, cloud) in arrival
+        # (stamp, message) in arrival order; converted by the worker (the message's buffer is
+        # the most compact form a scan has)
+        self._scans: deque[tuple[float, PointCloud2]] = deque()
         self._poses: deque[tuple[float, Pose]] = deque()
         self._builder_lock = threading.Lock()
         self._dirty = False
@@ -133,13 +134,20 @@ class MapBuilderNode(Node):
     # --- callbacks: convert and enqueue only ------------------------------------------------
     def _on_scan(self, msg: PointCloud2) -> None:
         self.counts.received += 1
-        try:
-            cloud = conv.pointcloud2_to_cloud(msg, require_label=self.opts.require_labels)
+        try:  # the layout is checked here, the points are read by the worker
+            names = conv.pointcloud2_dtype(msg).names or ()
+            missing = [n for n in ("x", "y", "z") if n not in names]
+            if missing:
+                raise ValueError(f"PointCloud2 has no {', '.join(missing)} field "
+                                 f"(fields: {', '.join(names) or 'none'})")
+            if self.opts.require_labels and "label" not in names:
+                raise ValueError(f"PointCloud2 has no 'label' field (fields: {', '.join(names)}"
+                                 f"); run cloud_segmenter first or set require_labels false")
         except ValueError as exc:
             self._rejected("fields", f"scan ignored: {exc}")
             return
         with self._wake:
-            self._scans.append((conv.stamp_to_seconds(msg.header.stamp), cloud))
+            self._scans.append((conv.stamp_to_seconds(msg.header.stamp), msg))
             while len(self._scans) > self.opts.queue_size:
                 self._scans.popleft()
                 self.counts.dropped_queue += 1
@@ -202,7 +210,7 @@ class MapBuilderNode(Node):
                                 if item[0] <= stamp + self.opts.time_jump)
         self._reset_builder()
 
-    def _next_scan(self) -> tuple[float, LabelledCloud] | None:
+    def _next_scan(self) -> tuple[float, PointCloud2] | None:
         """The oldest queued scan once its pose can be interpolated (or never will be)."""
         with self._wake:
             if not self._scans:
@@ -216,7 +224,7 @@ class MapBuilderNode(Node):
 
     def _drain_scans(self) -> None:
         while (item := self._next_scan()) is not None:
-            stamp, cloud = item
+            stamp, msg = item
             if self._jumped(stamp, self._last_stamp):
                 if not self.opts.reset_on_time_jump:
                     self._rejected("order", f"scan at {stamp:.3f} s is older than the previous "
@@ -234,10 +242,13 @@ class MapBuilderNode(Node):
                 self.counts.dropped_no_pose += 1  # older than every pose kept
                 continue
             try:
-                self.builder.add_scan(cloud, None, stamp)
+                self.builder.add_scan(conv.pointcloud2_to_cloud(msg), None, stamp)
             except ScanRejected as exc:
                 self.builder.skipped.clear()  # counted here; the list would grow forever
                 self._rejected(exc.kind, str(exc))
+                continue
+            except ValueError as exc:  # a message whose data does not match its layout
+                self._rejected("fields", f"scan ignored: {exc}")
                 continue
             self._last_stamp = stamp
             self.counts.accepted += 1
