@@ -317,3 +317,30 @@ def test_build_map_command_refuses_unknown_input(tmp_path):
     proc = _semcal("build-map", str(tmp_path))
     assert proc.returncode == 1
     assert "neither a scene folder" in proc.stderr
+
+
+def test_vehicle_poses_with_lidar_extrinsic_and_unreadable_scans(world, tmp_path):
+    """Vehicle poses + extrinsic give the same map as lidar poses; a scan file that cannot be
+    read is skipped with its reason while the others are built."""
+    lidar_poses = drive(4, step=1.5, seed=4)
+    extrinsic = _pose(1.2, 3.0)
+    extrinsic[2, 3] = 0.4  # lidar 1.2 m ahead, 0.4 m up, turned 3 deg in the vehicle frame
+    vehicle = np.array([p @ np.linalg.inv(extrinsic) for p in lidar_poses])
+    scans = [scan_from(world, p, 40 + i) for i, p in enumerate(lidar_poses)]
+    params = MapBuildParams(icp=False)
+    direct = build_map([ScanInput(s, p, float(i)) for i, (s, p) in
+                        enumerate(zip(scans, lidar_poses))], params)
+
+    def missing():
+        raise FileNotFoundError(f"scan file not found: {tmp_path / 'gone.ply'}")
+
+    items = [ScanInput(s, p, float(i), f"s{i}") for i, (s, p) in enumerate(zip(scans, vehicle))]
+    items.insert(2, ScanInput(missing, vehicle[1], 1.5, "gone"))
+    via_vehicle = build_map(items, params, lidar_extrinsic=extrinsic)
+    assert via_vehicle.skipped == [("gone", f"scan gone: scan file not found: "
+                                            f"{tmp_path / 'gone.ply'}")]
+    np.testing.assert_allclose(via_vehicle.prior_poses, lidar_poses, atol=1e-9)
+    a, b = direct.map, via_vehicle.map
+    assert len(a) == len(b)
+    np.testing.assert_allclose(a.xyz[np.lexsort(a.xyz.T)], b.xyz[np.lexsort(b.xyz.T)],
+                               atol=1e-6)
