@@ -311,6 +311,11 @@ def test_build_map_command_on_kitti(tmp_path):
     assert (tmp_path / "poses.yaml").is_file()
     again = _semcal("build-map", str(KITTI), "-o", str(out), "--count", "3")
     assert again.returncode == 1 and "exists (use --force" in again.stderr
+    config = tmp_path / "map_builder.yaml"  # the node's parameter file: mapping.* is read
+    config.write_text("map_builder:\n  ros__parameters:\n    publish_period: 1.0\n"
+                      "    mapping:\n      voxle: 0.2\n")
+    bad = _semcal("build-map", str(KITTI), "-o", str(out), "--config", str(config))
+    assert bad.returncode == 1 and "unknown parameter(s): voxle" in bad.stderr
 
 
 def test_build_map_command_refuses_unknown_input(tmp_path):

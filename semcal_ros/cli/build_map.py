@@ -26,7 +26,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                              "--force)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output file")
     parser.add_argument("--config", type=Path, default=None,
-                        help="ROS 2 parameter file with a map_builder section (flags win)")
+                        help="ROS 2 parameter file of the map_builder node; its mapping.* "
+                             "group is used (flags win)")
     parser.add_argument("--d-max", type=float, default=None,
                         help="drop points farther than this from the sensor, m (default 60)")
     parser.add_argument("--voxel", type=float, default=None,
@@ -64,7 +65,9 @@ def _params(args: argparse.Namespace, crop_center_default):
     from semcal_ros.config import apply_flat, load_node_params
     from semcal_ros.mapping import MapBuildParams
 
+    # the node's file: the builder's parameters are its ``mapping.*`` group
     flat = load_node_params(args.config, "map_builder") if args.config else {}
+    flat = {k[len("mapping."):]: v for k, v in flat.items() if k.startswith("mapping.")}
     params = apply_flat(MapBuildParams(), flat)
     overrides: dict = {}
     if args.d_max is not None:
