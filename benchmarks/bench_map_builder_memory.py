@@ -56,9 +56,7 @@ def main() -> int:
     params = {"mapping.icp": args.icp, "publish_period": 2.0}
     if args.mode == "full":
         params.update({"mapping.max_scans": scans, "reset_on_time_jump": False})
-    graph = NodeGraph(out / f"logs-{args.mode}")
-    ctx = None
-    try:
+    with NodeGraph(out / f"logs-{args.mode}") as graph:
         builder = graph.start_node("map_builder", params_file=config_file("map_builder.yaml"),
                                    params=params, remap={"scan": SCAN_TOPIC, "odom": ODOM_TOPIC})
         builder.wait_for_log("ready", 60)
@@ -107,10 +105,6 @@ def main() -> int:
                 if np.any((arr[:, 0] >= w) & (arr[:, 0] < w + window))]
         print(f"minimum RSS per {window:.0f} s window (MB): {', '.join(lows)}")
         return 0
-    finally:
-        if ctx is not None:
-            ctx.try_shutdown()
-        graph.close()
 
 
 if __name__ == "__main__":

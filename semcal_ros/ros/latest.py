@@ -13,19 +13,9 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from pathlib import Path
 from typing import Any, Callable
 
 from semcal_ros.ros.diagnostics import Level
-
-
-def require_model(model: str, config: str) -> None:
-    """Refuse to start a segmenter without its model files (clear message naming the parameter)."""
-    if not model or not config:
-        raise ValueError("parameters 'model' (ONNX file) and 'model_config' (YAML) are required")
-    for name, path in (("model", model), ("model_config", config)):
-        if not Path(path).is_file():
-            raise FileNotFoundError(f"parameter '{name}': file not found: {path}")
 
 
 class LatestWorker:

@@ -139,7 +139,8 @@ class NodeProcess:
 
 
 class NodeGraph:
-    """The processes of one demo or test in a domain of its own; :meth:`close` stops them."""
+    """The processes of one demo or test in a domain of its own; :meth:`close` (or leaving a
+    ``with`` block) stops them."""
 
     def __init__(self, log_dir: str | Path) -> None:
         self._lock = DomainLock()
@@ -148,6 +149,13 @@ class NodeGraph:
         self.log_dir = Path(log_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.processes: list[NodeProcess] = []
+        self.contexts: list[Any] = []
+
+    def __enter__(self) -> "NodeGraph":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
     def start(self, name: str, executable: str, *args: str) -> NodeProcess:
         """Start a console script of the venv (``map_builder``, ``semcal`` ...)."""
@@ -175,9 +183,13 @@ class NodeGraph:
             os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(profile))
         ctx = rclpy.Context()
         rclpy.init(context=ctx, domain_id=self.domain)
+        self.contexts.append(ctx)
         return ctx
 
     def close(self) -> None:
+        """Shut the contexts made by :meth:`context` down, stop every process, free the domain."""
+        for ctx in self.contexts:
+            ctx.try_shutdown()
         for proc in reversed(self.processes):
             proc.stop()
         self._lock.release()

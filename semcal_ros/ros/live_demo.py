@@ -69,7 +69,6 @@ def run_live(opts: DemoOptions) -> int:
     scene = ensure_scene(out, opts.seed)
     scans = scan_count(scene / "bag")
     graph = NodeGraph(out / "logs")
-    ctx = None
     deadline = time.monotonic() + opts.timeout
     try:
         print(f"starting map_builder and calibrator (ROS_DOMAIN_ID {graph.domain}, localhost "
@@ -148,6 +147,4 @@ def run_live(opts: DemoOptions) -> int:
         print(f"node logs: {graph.log_dir}")
         return 1
     finally:
-        if ctx is not None:
-            ctx.try_shutdown()
         graph.close()

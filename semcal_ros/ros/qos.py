@@ -4,9 +4,9 @@ Streams (scans, images, poses) use sensor-data QoS: best effort, so a subscriber
 sensor down and a late sample is dropped rather than repaired. Best-effort subscribers also accept
 reliable publishers (bags, drivers configured either way). Things that exist once and change
 rarely (the map, the calibration result, /tf_static) are reliable and transient-local: a node
-started later still receives the last one. All publishers and subscriptions are created with
-QoS overriding enabled, so ``qos_overrides./topic.subscription.depth`` etc. can be set as
-parameters without code changes.
+started later still receives the last one. Publishers and subscriptions are created with QoS
+overriding enabled, so history, depth and reliability can be changed by parameters
+(``qos_overrides./topic.subscription.depth``) without code changes.
 """
 
 from __future__ import annotations
@@ -40,5 +40,5 @@ def reliable(depth: int = 10) -> QoSProfile:
 
 
 def overridable() -> QoSOverridingOptions:
-    """Let users change history, depth, reliability and durability per topic by parameters."""
+    """Let users change history, depth and reliability per topic by parameters."""
     return QoSOverridingOptions.with_default_policies()

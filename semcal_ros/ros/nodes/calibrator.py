@@ -186,19 +186,23 @@ class CalibratorNode(Node):
             self._map, self._map_source = cloud, path
         self.get_logger().info(f"map from {path}: {len(cloud)} points")
 
-    def _input_failed(self, what: str, exc: Exception) -> None:
-        text = str(exc)
-        if self._input_errors.get(what) != text:
-            self.get_logger().error(f"ignoring {what}: {text}")
-        self._input_errors[what] = text
+    def _convert(self, what: str, convert: Any, msg: Any) -> Any:
+        """``convert(msg)``, or None with the reason logged once and kept for the diagnostics."""
+        try:
+            value = convert(msg)
+        except ValueError as exc:
+            if self._input_errors.get(what) != str(exc):
+                self.get_logger().error(f"ignoring {what}: {exc}")
+            self._input_errors[what] = str(exc)
+            return None
+        self._input_errors.pop(what, None)
+        return value
 
     def _on_map(self, msg: PointCloud2) -> None:
-        try:
-            cloud = conv.pointcloud2_to_cloud(msg, require_label=True).finite()
-        except ValueError as exc:
-            self._input_failed("map", exc)
+        cloud = self._convert("map", lambda m: conv.pointcloud2_to_cloud(
+            m, require_label=True).finite(), msg)
+        if cloud is None:
             return
-        self._input_errors.pop("map", None)
         with self._lock:
             first = self._map is None or self._map_source != "topic"
             self._map, self._map_source = cloud, "topic"
@@ -207,34 +211,22 @@ class CalibratorNode(Node):
             self.get_logger().info(f"map received: {len(cloud)} points in '{self._map_frame}'")
 
     def _on_labels(self, msg: Image) -> None:
-        try:
-            labels = conv.image_to_labels(msg)
-        except ValueError as exc:
-            self._input_failed("label image", exc)
-            return
-        self._input_errors.pop("label image", None)
-        with self._lock:
-            self._labels, self._labels_frame = labels, msg.header.frame_id
+        labels = self._convert("label image", conv.image_to_labels, msg)
+        if labels is not None:
+            with self._lock:
+                self._labels, self._labels_frame = labels, msg.header.frame_id
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            camera = conv.camera_info_to_model(msg)
-        except ValueError as exc:
-            self._input_failed("CameraInfo", exc)
-            return
-        self._input_errors.pop("CameraInfo", None)
-        with self._lock:
-            self._camera = camera
+        camera = self._convert("CameraInfo", conv.camera_info_to_model, msg)
+        if camera is not None:
+            with self._lock:
+                self._camera = camera
 
     def _on_image(self, msg: Image) -> None:
-        try:
-            rgb = conv.image_to_rgb(msg)
-        except ValueError as exc:
-            self._input_failed("camera image", exc)
-            return
-        self._input_errors.pop("camera image", None)
-        with self._lock:
-            self._rgb = rgb
+        rgb = self._convert("camera image", conv.image_to_rgb, msg)
+        if rgb is not None:
+            with self._lock:
+                self._rgb = rgb
 
     def inputs(self) -> Inputs:
         with self._lock:

@@ -15,15 +15,11 @@ from typing import Any
 
 import numpy as np
 from numpy.lib import recfunctions
-from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
 from semcal_ros.ros import conversions as conv
-from semcal_ros.ros import qos
-from semcal_ros.ros.diagnostics import Diagnostics, Level
-from semcal_ros.ros.latest import LatestWorker, require_model
-from semcal_ros.ros.params import declare_and_read
 from semcal_ros.ros.runtime import run_node
+from semcal_ros.ros.segmenter_node import SegmenterNode
 from semcal_ros.segmentation.onnx_runner import RunnerParams
 
 
@@ -49,30 +45,18 @@ def add_label_field(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
     return out
 
 
-class CloudSegmenterNode(Node):
+class CloudSegmenterNode(SegmenterNode):
+    msg_type, in_topic, out_topic, what = PointCloud2, "points", "labelled_points", "scans"
+
     def __init__(self) -> None:
-        super().__init__("cloud_segmenter")
+        super().__init__("cloud_segmenter", CloudSegmenterParams())
+
+    def load(self, opts: CloudSegmenterParams) -> Any:
         from semcal_ros.segmentation.cloud import CloudSegmenter
 
-        self.opts = declare_and_read(self, CloudSegmenterParams())
-        require_model(self.opts.model, self.opts.model_config)
-        self.segmenter = CloudSegmenter.from_files(self.opts.model, self.opts.model_config,
-                                                   self.opts.runner)
-        overrides = qos.overridable()
-        self.publisher = self.create_publisher(PointCloud2, "labelled_points", qos.sensor(5),
-                                               qos_overriding_options=overrides)
-        self.worker = LatestWorker(self._segment, self._failed, self.opts.queue_size)
-        self.create_subscription(PointCloud2, "points", self.worker.put, qos.sensor(5),
-                                 qos_overriding_options=overrides)
-        self.diagnostics = Diagnostics(self, self._report, self.opts.diagnostics_period)
-        self.get_logger().info(f"ready: {self.resolve_topic_name('points')} -> "
-                               f"{self.resolve_topic_name('labelled_points')} with "
-                               f"{self.opts.model}")
+        return CloudSegmenter.from_files(opts.model, opts.model_config, opts.runner)
 
-    def close(self) -> None:
-        self.worker.stop()
-
-    def _segment(self, msg: PointCloud2) -> None:
+    def segment_message(self, msg: PointCloud2) -> PointCloud2:
         points = conv.pointcloud2_to_array(msg)
         cloud = conv.pointcloud2_to_cloud(msg)  # names a missing x/y/z field
         name = self.opts.intensity_field
@@ -83,13 +67,7 @@ class CloudSegmenterNode(Node):
         out.height, out.width = msg.height, msg.width
         out.row_step = out.point_step * msg.width
         out.is_dense = msg.is_dense
-        self.publisher.publish(out)
-
-    def _failed(self, text: str) -> None:
-        self.get_logger().error(text, throttle_duration_sec=5.0)
-
-    def _report(self) -> tuple[Level, str, dict[str, Any]]:
-        return self.worker.report("scans")
+        return out
 
 
 def main(args: list[str] | None = None) -> int:

@@ -13,15 +13,11 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
-from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 from semcal_ros.ros import conversions as conv
-from semcal_ros.ros import qos
-from semcal_ros.ros.diagnostics import Diagnostics, Level
-from semcal_ros.ros.latest import LatestWorker, require_model
-from semcal_ros.ros.params import declare_and_read
 from semcal_ros.ros.runtime import run_node
+from semcal_ros.ros.segmenter_node import SegmenterNode
 from semcal_ros.segmentation.onnx_runner import RunnerParams
 
 
@@ -34,38 +30,20 @@ class ImageSegmenterParams:
     diagnostics_period: float = 1.0  # s (0: off)
 
 
-class ImageSegmenterNode(Node):
+class ImageSegmenterNode(SegmenterNode):
+    msg_type, in_topic, out_topic, what = Image, "image", "labels", "images"
+
     def __init__(self) -> None:
-        super().__init__("image_segmenter")
+        super().__init__("image_segmenter", ImageSegmenterParams())
+
+    def load(self, opts: ImageSegmenterParams) -> Any:
         from semcal_ros.segmentation.image import ImageSegmenter
 
-        self.opts = declare_and_read(self, ImageSegmenterParams())
-        require_model(self.opts.model, self.opts.model_config)
-        self.segmenter = ImageSegmenter.from_files(self.opts.model, self.opts.model_config,
-                                                   self.opts.runner)
-        overrides = qos.overridable()
-        self.publisher = self.create_publisher(Image, "labels", qos.sensor(2),
-                                               qos_overriding_options=overrides)
-        self.worker = LatestWorker(self._segment, self._failed, self.opts.queue_size)
-        self.create_subscription(Image, "image", self.worker.put, qos.sensor(2),
-                                 qos_overriding_options=overrides)
-        self.diagnostics = Diagnostics(self, self._report, self.opts.diagnostics_period)
-        self.get_logger().info(f"ready: {self.resolve_topic_name('image')} -> "
-                               f"{self.resolve_topic_name('labels')} with {self.opts.model}")
+        return ImageSegmenter.from_files(opts.model, opts.model_config, opts.runner)
 
-    def close(self) -> None:
-        self.worker.stop()
-
-    def _segment(self, msg: Image) -> None:
+    def segment_message(self, msg: Image) -> Image:
         rgb = conv.image_to_rgb(msg)  # rgb8 or bgr8 (ValueError names any other encoding)
-        labels = self.segmenter.segment(rgb, "rgb8")
-        self.publisher.publish(conv.numpy_to_image(labels, "mono8", msg.header))
-
-    def _failed(self, text: str) -> None:
-        self.get_logger().error(text, throttle_duration_sec=5.0)
-
-    def _report(self) -> tuple[Level, str, dict[str, Any]]:
-        return self.worker.report("images")
+        return conv.numpy_to_image(self.segmenter.segment(rgb, "rgb8"), "mono8", msg.header)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,0 +1,69 @@
+"""The shape both segmenter nodes share: one input topic, a model, one output topic.
+
+Parameters come from a dataclass with ``model``, ``model_config``, ``queue_size``, ``runner`` and
+``diagnostics_period``; the model is loaded once at start (a missing file stops the node with a
+message naming the parameter); messages are segmented by a :class:`LatestWorker` so the executor
+never waits for the model; the worker's counts are the node's diagnostics.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from rclpy.node import Node
+
+from semcal_ros.ros import qos
+from semcal_ros.ros.diagnostics import Diagnostics
+from semcal_ros.ros.latest import LatestWorker
+from semcal_ros.ros.params import declare_and_read
+
+
+def require_model(model: str, config: str) -> None:
+    """Refuse to start a segmenter without its model files (clear message naming the parameter)."""
+    if not model or not config:
+        raise ValueError("parameters 'model' (ONNX file) and 'model_config' (YAML) are required")
+    for name, path in (("model", model), ("model_config", config)):
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"parameter '{name}': file not found: {path}")
+
+
+class SegmenterNode(Node):
+    """Subclasses set ``msg_type``, ``in_topic``, ``out_topic``, ``what`` and implement
+    :meth:`load` and :meth:`segment_message`."""
+
+    msg_type: Any = None
+    in_topic, out_topic, what = "in", "out", "messages"
+
+    def __init__(self, name: str, defaults: Any) -> None:
+        super().__init__(name)
+        self.opts = declare_and_read(self, defaults)
+        require_model(self.opts.model, self.opts.model_config)
+        self.segmenter = self.load(self.opts)
+        overrides = qos.overridable()
+        depth = max(self.opts.queue_size, 2)
+        self.publisher = self.create_publisher(self.msg_type, self.out_topic, qos.sensor(depth),
+                                               qos_overriding_options=overrides)
+        self.worker = LatestWorker(self._process, self._failed, self.opts.queue_size)
+        self.create_subscription(self.msg_type, self.in_topic, self.worker.put, qos.sensor(depth),
+                                 qos_overriding_options=overrides)
+        self.diagnostics = Diagnostics(self, lambda: self.worker.report(self.what),
+                                       self.opts.diagnostics_period)
+        self.get_logger().info(f"ready: {self.resolve_topic_name(self.in_topic)} -> "
+                               f"{self.resolve_topic_name(self.out_topic)} with "
+                               f"{self.opts.model}")
+
+    def load(self, opts: Any) -> Any:
+        raise NotImplementedError
+
+    def segment_message(self, msg: Any) -> Any:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self.worker.stop()
+
+    def _process(self, msg: Any) -> None:
+        self.publisher.publish(self.segment_message(msg))
+
+    def _failed(self, text: str) -> None:
+        self.get_logger().error(text, throttle_duration_sec=5.0)
