@@ -19,7 +19,6 @@ import numpy as np
 from semcal_ros.camera import distort
 from semcal_ros.labels import INVALID
 from semcal_ros.render.prepare import CHUNK, PreparedMap
-from semcal_ros.render.reference import keys_to_labels
 from semcal_ros.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
 
 # OpenMP is in the numba wheel; without this numba first probes TBB and warns about an old one.
@@ -118,6 +117,18 @@ def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> 
     return zbuf.reshape(view.height, view.width)
 
 
+@numba.njit(cache=True, nogil=True)
+def _keys_to_labels(zbuf):
+    """Serial on purpose: waking the thread pool costs more than this loop."""
+    out = np.empty(zbuf.shape, dtype=np.uint8)
+    flat_in = zbuf.ravel()
+    flat_out = out.ravel()
+    for p in range(flat_in.shape[0]):
+        k = flat_in[p]
+        flat_out[p] = INVALID if k == EMPTY_KEY else np.uint8(k & 0xFF)
+    return out
+
+
 def render(pmap: PreparedMap, view: View) -> np.ndarray:
     """Aligned label image (H, W) uint8, INVALID where no point landed."""
-    return keys_to_labels(render_keys(pmap, view))
+    return _keys_to_labels(render_keys(pmap, view))
