@@ -22,8 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--offline", action="store_true",
                    help="no ROS: calibrate the scene's map and label image directly")
-    p.add_argument("--verification-starts", type=int, default=2, metavar="N",
-                   help="live demo: verification runs of the goal (default 2; -1: the "
+    p.add_argument("--verification-starts", type=int, default=1, metavar="N",
+                   help="live demo: verification runs of the goal (default 1; -1: the "
                         "calibrator's configured number)")
     p.set_defaults(func=run)
 
