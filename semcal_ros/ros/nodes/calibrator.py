@@ -3,10 +3,11 @@
 Holds the latest labelled map (``map``, transient local), label image (``camera/labels``, mono8
 trainIds), CameraInfo (``camera/camera_info``) and camera image (``camera/image_raw``, for the
 overlay); all topic names are relative, so remap them (``-r map:=/other/map``) or push the node
-into a namespace. A goal runs :func:`semcal_ros.optimize.calibrate` in an executor thread of its
-own (MultiThreadedExecutor, reentrant action group), so feedback (a timer, at least once a second),
-cancel requests and new messages keep flowing while it works. One goal at a time: a second goal is
-rejected and the reason logged and shown in the diagnostics. The result goes to the caller, to
+into a namespace. A goal runs :func:`semcal_ros.optimize.calibrate` in a thread of its own, while
+the executor (MultiThreadedExecutor, reentrant action group) keeps serving feedback (a timer, at
+least once a second), cancel requests and new messages; a cancel is answered at once and the engine
+stops at its next check. One goal at a time: a second goal is rejected and the reason logged and
+shown in the diagnostics. A goal that cannot run is aborted with a message naming every problem. The result goes to the caller, to
 ``calibration/transform`` (TransformStamped, transient local), to ``/tf_static`` (tf2_msgs
 TFMessage) and, as a picture of the map rendered at the result over the camera image, to
 ``calibration/overlay``.
@@ -23,10 +24,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from geometry_msgs.msg import TransformStamped
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
-from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from semcal_interfaces.action import Calibrate
@@ -36,7 +37,7 @@ from semcal_ros.params import CalibrationParams
 from semcal_ros.pose import Pose
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros import qos
-from semcal_ros.ros.calibrate_goal import Inputs, goal_request, input_problems
+from semcal_ros.ros.calibrate_goal import Inputs, Request, goal_request, input_problems
 from semcal_ros.ros.diagnostics import Diagnostics, Level
 from semcal_ros.ros.params import declare_and_read
 from semcal_ros.ros.runtime import run_node
@@ -81,7 +82,8 @@ class _Run:
 class _EngineJob:
     """One :func:`semcal_ros.optimize.calibrate` call in a thread; result or error kept."""
 
-    def __init__(self, node: "CalibratorNode", handle: Any, inputs: Inputs, request: Any) -> None:
+    def __init__(self, node: "CalibratorNode", handle: Any, inputs: Inputs,
+                 request: Request) -> None:
         self.node, self.handle, self.inputs, self.request = node, handle, inputs, request
         self.result: Any = None
         self.error: Exception | None = None
@@ -287,7 +289,7 @@ class CalibratorNode(Node):
                     if self._run is not None:
                         self._run.stage = "stopping (answered)"
 
-    def _answer(self, handle: Any, job: "_EngineJob", inputs: Inputs, request: Any
+    def _answer(self, handle: Any, job: _EngineJob, inputs: Inputs, request: Request
                 ) -> Calibrate.Result:
         if job.error is not None:
             from semcal_ros.optimize import Cancelled
