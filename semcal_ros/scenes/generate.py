@@ -29,6 +29,7 @@ from semcal_ros.scenes.actors import Actor, Polyline, actors_at
 from semcal_ros.scenes.bag import CameraFrame, SceneBagWriter
 from semcal_ros.scenes.labelnoise import add_label_noise
 from semcal_ros.scenes.layouts import KINDS, Layout, build_layout
+from semcal_ros.scenes.mesh import LabelledMesh
 from semcal_ros.scenes.sensors import LidarSpec, World, default_camera, pixel_rays, rotate, scan
 from semcal_ros.scenes.shading import shade, to_image
 from semcal_ros.scenes.voxel import voxel_majority
@@ -227,7 +228,7 @@ def perturb_poses(positions: np.ndarray, quats: np.ndarray, rng: np.random.Gener
     return positions + dt, (Rotation.from_quat(quats) * dr).as_quat()
 
 
-def camera_images(world: World, layout: Layout, pose: Pose, moving, options: SceneOptions,
+def camera_images(world: World, pose: Pose, moving: LabelledMesh, options: SceneOptions,
                   noisy: bool, rng_noise: np.random.Generator, rng_shade: np.random.Generator
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Label image (trainIds, sky where nothing is hit) and shaded RGB image of the camera."""
@@ -245,7 +246,7 @@ def camera_images(world: World, layout: Layout, pose: Pose, moving, options: Sce
     elevation = np.radians(rng_shade.uniform(35.0, 60.0))
     sun = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
                     np.sin(elevation)])
-    linear = shade(world, pose.translation, dirs, hits, sun, rng_shade, moving)
+    linear = shade(world, pose.translation, dirs, hits, sun, moving)
     return labels, to_image(linear, camera.width, camera.height, s, rng_shade)
 
 
@@ -316,7 +317,7 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     camera = default_camera()
     truth = Pose.from_body_rpy_deg(layout.camera_position,
                                    [0.0, layout.camera_pitch_deg, layout.camera_yaw_deg])
-    labels, rgb = camera_images(world, layout, truth, actors_at(image_actors, t_camera), options,
+    labels, rgb = camera_images(world, truth, actors_at(image_actors, t_camera), options,
                                 variant == "noisy_labels", _rng(seed, kind, "noise"),
                                 _rng(seed, kind, "shading"))
     write_label_image(out / "labels.png", labels)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from semcal_ros.scenes.props import BUILDING, LANE_MARKING, ROAD, SIDEWALK, TERRAIN, VEGETATION
+from semcal_ros.scenes.mesh import LabelledMesh
 from semcal_ros.scenes.sensors import Hits, World
 
 HORIZON = np.array([0.78, 0.84, 0.90])
@@ -55,7 +56,7 @@ def sky(directions: np.ndarray) -> np.ndarray:
 
 
 def shade(world: World, origin: np.ndarray, directions: np.ndarray, hits: Hits,
-          sun: np.ndarray, rng: np.random.Generator, moving=None) -> np.ndarray:
+          sun: np.ndarray, moving: LabelledMesh | None = None) -> np.ndarray:
     """Linear RGB (N, 3) of camera rays."""
     colour = sky(directions)
     ok = hits.hit
