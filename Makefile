@@ -8,7 +8,8 @@ export OMP_NUM_THREADS ?= 2
 
 .PHONY: demo test bench lint clean-venv
 
-$(STAMP): requirements.txt setup.py .ci/setup-env.sh $(wildcard .ci/setup.d/*.sh)
+$(STAMP): requirements.txt requirements-build.txt setup.py .ci/setup-env.sh \
+          $(wildcard .ci/setup.d/*.sh) $(wildcard semcal_interfaces/*/*)
 	VENV=$(VENV) bash .ci/setup-env.sh
 	touch $(STAMP)
 
