@@ -83,14 +83,20 @@ def write_pose(path: str | Path, pose: Pose, extra: dict[str, Any] | None = None
     Path(path).write_text(yaml.safe_dump(pose_to_dict(pose, extra), sort_keys=False))
 
 
-def read_label_image(path: str | Path) -> np.ndarray:
-    """8-bit single-channel Cityscapes trainId image."""
+def imread(path: str | Path, flags: int = cv2.IMREAD_UNCHANGED, what: str = "image") -> np.ndarray:
+    """cv2.imread with the two failures it reports as None turned into clear errors."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"label image not found: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        raise FileNotFoundError(f"{what} not found: {path}")
+    img = cv2.imread(str(path), flags)
     if img is None:
         raise ValueError(f"{path}: not a readable image")
+    return img
+
+
+def read_label_image(path: str | Path) -> np.ndarray:
+    """8-bit single-channel Cityscapes trainId image."""
+    img = imread(path, cv2.IMREAD_UNCHANGED, "label image")
     if img.dtype != np.uint8 or img.ndim != 2:
         raise ValueError(f"{path}: label image must be 8-bit single channel "
                          f"(got {img.dtype}, {img.ndim} dims)")
@@ -110,7 +116,4 @@ def write_rgb_image(path: str | Path, rgb: np.ndarray) -> None:
 
 
 def read_rgb_image(path: str | Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise ValueError(f"{path}: not a readable image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(imread(path, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)

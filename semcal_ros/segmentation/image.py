@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from semcal_ros.io.files import imread
 from semcal_ros.labels import INVALID, colorize
 from semcal_ros.segmentation.decode import labels_from_class_map, labels_from_logits
 from semcal_ros.segmentation.model_config import ImageModelConfig, load_model_config
@@ -125,11 +126,7 @@ def read_colour_image(path: str | Path) -> tuple[np.ndarray, str]:
     Refuses what the segmenter refuses, naming the file: 16-bit, grey or 2-channel images.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"image not found: {path}")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise ValueError(f"{path}: not a readable image")
+    image = imread(path, cv2.IMREAD_UNCHANGED)
     if image.dtype != np.uint8:
         raise ValueError(f"{path}: {8 * image.dtype.itemsize}-bit image ({image.dtype}); only "
                          "8-bit colour images are supported")
