@@ -38,6 +38,23 @@ class LabelledCloud:
             {k: v[mask] for k, v in self.extra.items()},
         )
 
+    def to_structured(self, extra_fields: bool = True) -> np.ndarray:
+        """One record per point: x, y, z float32, extra fields as they are, label uint16 last
+        (little-endian): the layout of map.ply and of the PointCloud2 messages."""
+        layout = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+        extras = {k: np.asarray(v) for k, v in self.extra.items()} if extra_fields else {}
+        layout += [(k, v.dtype.newbyteorder("<").str) for k, v in extras.items()]
+        if self.label is not None:
+            layout.append(("label", "<u2"))
+        arr = np.empty(len(self), dtype=layout)
+        for i, axis in enumerate("xyz"):
+            arr[axis] = self.xyz[:, i]
+        for k, v in extras.items():
+            arr[k] = v
+        if self.label is not None:
+            arr["label"] = self.label
+        return arr
+
     def finite(self) -> "LabelledCloud":
         """Without NaN/inf points."""
         ok = np.all(np.isfinite(self.xyz), axis=1)

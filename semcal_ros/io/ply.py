@@ -40,18 +40,6 @@ def read_ply(path: str | Path, require_label: bool = True) -> LabelledCloud:
 
 def write_ply(path: str | Path, cloud: LabelledCloud) -> None:
     """Write the engine's map format (plus any extra fields, e.g. intensity as float)."""
-    n = len(cloud)
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    extra = {k: np.asarray(v) for k, v in cloud.extra.items()}
-    fields += [(k, v.dtype.newbyteorder("<").str) for k, v in extra.items()]
-    if cloud.label is not None:
-        fields.append(("label", "<u2"))
-    arr = np.empty(n, dtype=fields)
-    for i, axis in enumerate("xyz"):
-        arr[axis] = cloud.xyz[:, i]
-    for k, v in extra.items():
-        arr[k] = v
-    if cloud.label is not None:
-        arr["label"] = cloud.label
+    arr = cloud.to_structured()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     PlyData([PlyElement.describe(arr, "vertex")], text=False, byte_order="<").write(str(path))

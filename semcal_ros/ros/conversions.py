@@ -154,19 +154,7 @@ def array_to_pointcloud2(arr: np.ndarray, header: Header) -> PointCloud2:
 def cloud_to_pointcloud2(cloud: LabelledCloud, header: Header,
                          extra_fields: bool = True) -> PointCloud2:
     """x, y, z as float32, extra fields as they are, label as uint16 (last)."""
-    layout = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    extras = {k: np.asarray(v) for k, v in cloud.extra.items()} if extra_fields else {}
-    layout += [(k, v.dtype.newbyteorder("<").str) for k, v in extras.items()]
-    if cloud.label is not None:
-        layout.append(("label", "<u2"))
-    arr = np.empty(len(cloud), dtype=layout)
-    for i, axis in enumerate("xyz"):
-        arr[axis] = cloud.xyz[:, i]
-    for k, v in extras.items():
-        arr[k] = v
-    if cloud.label is not None:
-        arr["label"] = cloud.label
-    msg = array_to_pointcloud2(arr, header)
+    msg = array_to_pointcloud2(cloud.to_structured(extra_fields), header)
     msg.is_dense = bool(np.all(np.isfinite(cloud.xyz)))
     return msg
 
