@@ -1,7 +1,7 @@
 """The scene's raw sensor streams as a rosbag2 (mcap), written with ``rosbags`` (no ROS needed).
 
-Topics: ``/lidar/points`` (PointCloud2: x, y, z, intensity float32 + label uint16, frame
-``lidar``), ``/lidar/odom`` (Odometry of the lidar in ``map``), and the static camera's
+Topics: ``/lidar/points`` (PointCloud2: x, y, z, intensity float32 + label uint16, packed,
+frame ``lidar``), ``/lidar/odom`` (Odometry of the lidar in ``map``), and the static camera's
 ``/camera/image_raw`` (rgb8), ``/camera/labels`` (mono8 trainIds) and ``/camera/camera_info``,
 repeated every ``camera_period`` seconds so a late subscriber still gets them. Messages use the
 Jazzy definitions of rosbags' type store, so the bag's type hashes match a Jazzy system.
@@ -17,14 +17,13 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from semcal_ros.camera import CameraModel
+from semcal_ros.cloud import LabelledCloud
 
 LIDAR_FRAME = "lidar"
 MAP_FRAME = "map"
 
-#: Point layout on /lidar/points: 18 bytes of fields padded to 20 (4-byte aligned rows).
-POINT_DTYPE = np.dtype({"names": ["x", "y", "z", "intensity", "label"],
-                        "formats": ["<f4", "<f4", "<f4", "<f4", "<u2"],
-                        "offsets": [0, 4, 8, 12, 16], "itemsize": 20})
+#: PointField datatype of each numpy record type the scans use.
+_FIELD_TYPE = {"<f4": "FLOAT32", "<u2": "UINT16"}
 
 TOPICS = {
     "/lidar/points": "sensor_msgs/msg/PointCloud2",
@@ -78,18 +77,16 @@ class SceneBagWriter:
         return self.t["std_msgs/msg/Header"](stamp=time, frame_id=frame)
 
     def _cloud(self, stamp: float, xyz: np.ndarray, intensity: np.ndarray, label: np.ndarray):
-        pts = np.zeros(len(xyz), POINT_DTYPE)
-        pts["x"], pts["y"], pts["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        pts["intensity"], pts["label"] = intensity, label
+        # the project's one record layout (as map.ply and the nodes' PointCloud2): packed LE
+        pts = LabelledCloud(xyz, label, {"intensity": intensity.astype(np.float32)}).to_structured()
         field = self.t["sensor_msgs/msg/PointField"]
-        float32, uint16 = field.FLOAT32, field.UINT16
-        fields = [field(name=n, offset=POINT_DTYPE.fields[n][1],
-                        datatype=uint16 if n == "label" else float32, count=1)
-                  for n in POINT_DTYPE.names]
+        fields = [field(name=n, offset=pts.dtype.fields[n][1],
+                        datatype=getattr(field, _FIELD_TYPE[pts.dtype.fields[n][0].str]), count=1)
+                  for n in pts.dtype.names]
         return self.t["sensor_msgs/msg/PointCloud2"](
             header=self._header(stamp, LIDAR_FRAME), height=1, width=len(pts), fields=fields,
-            is_bigendian=False, point_step=POINT_DTYPE.itemsize,
-            row_step=POINT_DTYPE.itemsize * len(pts),
+            is_bigendian=False, point_step=pts.dtype.itemsize,
+            row_step=pts.dtype.itemsize * len(pts),
             data=np.frombuffer(pts.tobytes(), np.uint8), is_dense=True)
 
     def _odom(self, stamp: float, translation: np.ndarray, quaternion: np.ndarray):
