@@ -66,6 +66,20 @@ class CameraModel:
         return float(self.k[1, 2])
 
     @classmethod
+    def from_fov(cls, width: int = 960, height: int = 600, hfov_deg: float = 90.0,
+                 d: np.ndarray | tuple[float, ...] = (0.0,) * 5,
+                 frame_id: str = "camera_optical") -> "CameraModel":
+        """A pinhole camera with square pixels, principal point at the image centre and the
+        given horizontal field of view. The defaults are the paper's CARLA camera (960x600,
+        90 deg); every synthetic world (scenes, synthetic street) is seen through this one
+        model. The focal length is rounded to 1e-9 px so 90 deg gives exactly f = width / 2."""
+        if not 0.0 < hfov_deg < 180.0:
+            raise ValueError(f"horizontal field of view must be in (0, 180) deg, got {hfov_deg}")
+        f = round(width / 2.0 / float(np.tan(np.radians(hfov_deg / 2.0))), 9)
+        k = np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return cls(width, height, k, np.asarray(d, dtype=float), frame_id)
+
+    @classmethod
     def from_camera_info_dict(cls, data: dict, frame_id: str = "camera_optical") -> "CameraModel":
         """From the camera_calibration_parsers YAML layout."""
         try:

@@ -10,8 +10,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from semcal_ros.cloud import LabelledCloud
+from semcal_ros.labels import KITTI_ID
 
-ROAD, BUILDING, POLE, CAR = 40, 50, 80, 10
+ROAD, BUILDING, POLE, CAR = (KITTI_ID[n] for n in ("road", "building", "pole", "car"))
 LIDAR_HEIGHT = 1.8
 
 

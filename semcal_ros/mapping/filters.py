@@ -12,9 +12,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from semcal_ros.cloud import LabelledCloud
+from semcal_ros.labels import KITTI_ID
 
-#: SemanticKITTI id 0, "unlabeled": loses every voxel vote against a real class.
-UNLABELED = 0
+#: SemanticKITTI "unlabeled" (0): loses every voxel vote against a real class.
+UNLABELED = KITTI_ID["unlabeled"]
 
 
 def as_scan_cloud(data: Any, what: str = "scan") -> LabelledCloud:
@@ -70,8 +71,12 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
     ``voxel_down_sample`` averages every attribute, which turns label ids into meaningless means.
     ``unlabeled`` (0) only wins a voxel in which no point has a class, so unlabelled scans (KITTI
     has labels for some scans only) fill gaps without overwriting classes; other ties go to the
-    smaller id (as in the scene generator's map). Unlabelled clouds get plain centroids. Float extra fields (intensity, normal
+    smaller id. Unlabelled clouds get plain centroids. Float extra fields (intensity, normal
     components) are averaged over the same points as the centroid; other extras are dropped.
+    Cells are computed in the cloud's own precision (float32 points are binned as float32 numbers)
+    and centroids summed in float64, so a float32 cloud loses nothing to the averaging. The grid
+    is anchored at the coordinate origin: callers that want it elsewhere shift the points.
+    This is the one majority-label voxel filter of the project (map builder and scene generator).
     """
     if voxel <= 0:
         raise ValueError(f"voxel size must be positive, got {voxel}")
@@ -112,7 +117,8 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
     voxel_starts = np.flatnonzero(np.r_[True, group_voxel[1:] != group_voxel[:-1]])
     per_voxel = np.diff(np.r_[voxel_starts, len(groups)])
     best = np.flatnonzero(rank == np.repeat(np.maximum.reduceat(rank, voxel_starts), per_voxel))
-    points = np.add.reduceat(xyz[order], starts, axis=0)[best] / counts[best, None]
+    points = np.add.reduceat(xyz[order], starts, axis=0, dtype=np.float64)[best] \
+        / counts[best, None]
     extra = {name: (np.add.reduceat(values[order], starts)[best] / counts[best]
                     ).astype(values.dtype)
              for name, values in cloud.extra.items()

@@ -21,7 +21,8 @@ from tqdm import tqdm
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.io.files import write_camera_info, write_label_image, write_pose, write_rgb_image
 from semcal_ros.io.ply import write_ply
-from semcal_ros.labels import CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID, KITTI_ID, SEMANTIC_KITTI, SKY
+from semcal_ros.mapping.filters import voxel_downsample
+from semcal_ros.labels import CITYSCAPES, SEMANTIC_KITTI, SKY, LabelMapping
 from semcal_ros.camera import CameraModel
 from semcal_ros.pose import Pose
 from semcal_ros.scenes import props
@@ -32,7 +33,6 @@ from semcal_ros.scenes.layouts import KINDS, Layout, build_layout
 from semcal_ros.scenes.mesh import LabelledMesh
 from semcal_ros.scenes.sensors import LidarSpec, World, default_camera, pixel_rays, rotate, scan
 from semcal_ros.scenes.shading import shade, to_image
-from semcal_ros.scenes.voxel import voxel_majority
 
 VARIANTS = ("ideal", "noisy_labels", "dynamic", "sparse", "pose_noise")
 #: pose_noise only: the map accumulated with the perturbed poses (map.ply uses the true ones).
@@ -139,18 +139,23 @@ class MapAccumulator:
         self._labels.append(label[near][inside])
 
     def cloud(self) -> LabelledCloud:
-        xyz, label = voxel_majority(np.concatenate(self._xyz), np.concatenate(self._labels),
-                                    self.voxel)
+        """The map: one point per voxel (majority class), the grid anchored at the points' lower
+        corner. Binned as float32 numbers relative to that corner, centroids in float64."""
+        rel = np.concatenate(self._xyz)
+        label = np.concatenate(self._labels)
         self._xyz, self._labels = [], []
-        return LabelledCloud(xyz + self.origin, label)
+        if len(rel) == 0:
+            return LabelledCloud(np.zeros((0, 3)), np.zeros(0, np.uint16))
+        corner = rel.min(axis=0).astype(np.float64)
+        thin = voxel_downsample(LabelledCloud((rel - corner).astype(np.float32), label),
+                                self.voxel)
+        return LabelledCloud(thin.xyz + corner + self.origin, thin.label)
 
 
 def kitti_to_train_id() -> np.ndarray:
-    """uint8[65536]: SemanticKITTI id -> Cityscapes trainId (the label alignment, dynamic kept)."""
-    lut = np.full(65536, INVALID, np.uint8)
-    for kitti, city in DEFAULT_ALIGNMENT.items():
-        lut[KITTI_ID[kitti]] = CITYSCAPES_ID[city]
-    return lut
+    """uint8[65536]: SemanticKITTI id -> Cityscapes trainId (the label alignment, dynamic kept:
+    the camera sees moving cars and people as cars and people)."""
+    return LabelMapping(dynamic=()).lidar_lut()
 
 
 def make_actors(layout: Layout, rng: np.random.Generator, cars: int, people: int,
@@ -402,7 +407,7 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
                    "moving_actors_image": len(image_actors)},
         "map_classes": _class_counts(map_cloud.label),
         "image_class_fractions": {
-            (("sky" if i == SKY else next((n for n, v in CITYSCAPES_ID.items() if v == i), "ignore"))):
+            CITYSCAPES.get(int(i), "ignore"):
                 round(float(c) / labels.size, 4) for i, c in zip(image_ids, image_counts)},
         "seconds": {k: round(v, 2) for k, v in timing.items()},
     }

@@ -13,6 +13,7 @@ import numpy as np
 import open3d as o3d
 
 from semcal_ros.camera import CameraModel
+from semcal_ros.labels import KITTI_ID
 from semcal_ros.pose import Pose
 from semcal_ros.scenes.mesh import LabelledMesh
 
@@ -121,14 +122,15 @@ class LidarSpec:
 
 
 #: Diffuse reflectivity by SemanticKITTI class, for the lidar's intensity channel.
-REFLECTIVITY = {40: 0.12, 48: 0.25, 72: 0.35, 60: 0.75, 50: 0.3, 80: 0.35, 81: 0.95, 51: 0.3,
-                71: 0.3, 70: 0.4, 10: 0.45, 252: 0.45, 254: 0.3}
+REFLECTIVITY = {"road": 0.12, "sidewalk": 0.25, "terrain": 0.35, "lane-marking": 0.75,
+                "building": 0.3, "pole": 0.35, "traffic-sign": 0.95, "fence": 0.3, "trunk": 0.3,
+                "vegetation": 0.4, "car": 0.45, "moving-car": 0.45, "moving-person": 0.3}
 
 
 def _reflectivity_lut() -> np.ndarray:
     lut = np.full(65536, 0.3, np.float32)
-    for k, v in REFLECTIVITY.items():
-        lut[k] = v
+    for name, v in REFLECTIVITY.items():
+        lut[KITTI_ID[name]] = v
     return lut
 
 
@@ -180,6 +182,4 @@ def pixel_rays(camera: CameraModel, pose: Pose, supersample: int = 1) -> np.ndar
 
 def default_camera() -> CameraModel:
     """960x600, 90 deg horizontal field of view, no distortion (as in the paper's CARLA setup)."""
-    f = 480.0 / np.tan(np.radians(45.0))
-    k = np.array([[f, 0.0, 479.5], [0.0, f, 299.5], [0.0, 0.0, 1.0]])
-    return CameraModel(960, 600, k, np.zeros(5))
+    return CameraModel.from_fov(960, 600, 90.0)
