@@ -332,12 +332,16 @@ class CalibratorNode(Node):
 
     def _finish(self, handle: Any, outcome: str, message: str, **fields: Any
                 ) -> Calibrate.Result:
+        result = Calibrate.Result(success=outcome == "succeed", message=message, **fields)
         getattr(handle, outcome)()
         self.last_result = message
         past = {"succeed": "succeeded", "abort": "aborted", "canceled": "cancelled"}[outcome]
-        log = self.get_logger().info if outcome == "succeed" else self.get_logger().warning
-        log(f"goal {past}: {message}")
-        return Calibrate.Result(success=outcome == "succeed", message=message, **fields)
+        # rclpy binds a severity to each logging call site: one site per severity, never shared
+        if outcome == "succeed":
+            self.get_logger().info(f"goal {past}: {message}")
+        else:
+            self.get_logger().warning(f"goal {past}: {message}")
+        return result
 
     def progress(self, p: Any) -> None:
         with self._lock:
