@@ -1,0 +1,19 @@
+"""Build real Cityscapes segmenters as ONNX files from published weights, without PyTorch.
+
+``semcal export-model`` calls :func:`export_model`: it reads a ``.npz`` of a model's PyTorch
+``state_dict`` (keys = state_dict names), builds the published architecture as an ONNX graph
+(:mod:`.espnetv2`, :mod:`.espnet`), checks every tensor's shape against the architecture, and
+writes the ``.onnx`` plus the model config YAML (see docs/segmentation.md) beside it, so the
+result runs through :class:`semcal_ros.segmentation.image.ImageSegmenter` unchanged.
+
+The preprocessing facts come from the authors' code: ESPNetv2 (EdgeNets) takes RGB in [0, 1]
+normalised with the ImageNet mean and std; ESPNet takes BGR 0-255 minus its Cityscapes mean,
+divided by its std *and then by 255* (``ToTensor`` divides after ``Normalize`` in training, and
+its test script does the same), hence ``std`` x 255 in its config. Both output 20 channels:
+Cityscapes trainIds 0-18 and 19 = background/void, ignored.
+"""
+
+#: Exportable architectures (light names for the command line; the builders are in exporter).
+ARCH_NAMES = ("espnetv2", "espnet")
+#: The authors' input size for Cityscapes (half resolution).
+DEFAULT_SIZE = (1024, 512)
