@@ -18,7 +18,8 @@ from semcal_ros.io.files import read_camera_info, read_label_image, read_pose, r
 from semcal_ros.io.ply import read_ply
 from semcal_ros.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, LabelMapping
 from semcal_ros.pose import Pose, rotation_error_deg, translation_error
-from semcal_ros.scenes import SceneOptions
+from semcal_ros.scenes import SIZES, SceneOptions, catalogue
+from semcal_ros.scenes.generate import vehicle_poses
 from semcal_ros.scenes.layouts import KINDS, build_layout
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.mapping.filters import voxel_downsample
@@ -285,7 +286,7 @@ def test_layouts_carry_every_roadside_class(kind):
     assert {KITTI_ID[n] for n in wanted} <= present
     assert np.all(np.isfinite(layout.static.vertices))
     # the full-size drive (200 scans at 10 Hz) fits the path even at the fastest speed drawn
-    fastest = {"junction": 9.0, "arterial": 13.0, "highway": 27.0}[kind]
+    fastest = {"junction": 9.0, "arterial": 13.0, "highway": 27.0, "roundabout": 8.0}[kind]
     assert layout.drive.length >= fastest * (SceneOptions().scans - 1) / SceneOptions().scan_rate_hz
 
 
@@ -327,6 +328,106 @@ def test_cli_generates_a_scene_and_rejects_bad_input(tmp_path: Path):
     again = subprocess.run([str(semcal), "scene", "--kind", "highway", "--out", str(out)],
                            capture_output=True, text=True, timeout=60)
     assert again.returncode == 1 and "not empty" in again.stderr
-    bad = subprocess.run([str(semcal), "scene", "--kind", "roundabout", "--out",
+    bad = subprocess.run([str(semcal), "scene", "--kind", "racetrack", "--out",
                           str(tmp_path / "x")], capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 1 and "unknown scene kind 'roundabout'" in bad.stderr
+    assert bad.returncode == 1 and "unknown scene kind 'racetrack'" in bad.stderr
+    listed = subprocess.run([str(semcal), "scene", "--list", "--out", "S"], capture_output=True,
+                            text=True, timeout=60)
+    assert listed.returncode == 0, listed.stderr
+    lines = listed.stdout.splitlines()
+    assert len(lines) == len(catalogue()) and "--out S/roundabout-sparse" in listed.stdout
+    unknown = subprocess.run([str(semcal), "scene", "--catalogue", "roundabout-foggy", "--out",
+                              str(tmp_path / "y")], capture_output=True, text=True, timeout=60)
+    assert unknown.returncode == 1 and "no catalogue scene 'roundabout-foggy'" in unknown.stderr
+
+
+# ------------------------------------------------------------------------------------------
+# what users have: random map frames, the camera's own gear, curved drives, other lidars
+
+def test_random_map_frame_moves_everything_written_and_nothing_seen(scene_factory):
+    plain = scene_factory("junction", 3, "ideal", **TINY)
+    moved = scene_factory("junction", 3, "ideal", map_frame="random", **TINY)
+    meta = yaml.safe_load((moved / "scene.yaml").read_text())["map_frame"]
+    turn = Rotation.from_euler("z", meta["yaw_deg"], degrees=True)
+    shift = np.asarray(meta["shift"])
+    assert 20.0 <= np.hypot(*shift[:2]) <= 80.0 and abs(shift[2]) <= 3.0
+
+    for name in ("ground_truth.yaml", "initial.yaml"):
+        a, b = read_pose(plain / name), read_pose(moved / name)
+        np.testing.assert_allclose(b.translation, turn.apply(a.translation) + shift, atol=1e-9)
+        np.testing.assert_allclose(b.rotation, turn.as_matrix() @ a.rotation, atol=1e-9)
+    for a, b in zip(read_poses(plain / "scans" / "poses.yaml")["scans"],
+                    read_poses(moved / "scans" / "poses.yaml")["scans"]):
+        np.testing.assert_allclose(b["translation"], turn.apply(a["translation"]) + shift,
+                                   atol=1e-9)
+        assert rotation_error_deg(Pose(np.zeros(3), b["rotation"]), Pose(
+            np.zeros(3), (turn * Rotation.from_quat(a["rotation"])).as_quat())) < 1e-6
+    # the sensors saw the same world: images and scans identical
+    for name in ("labels.png", "image.png", "scans/000003.ply"):
+        assert (plain / name).read_bytes() == (moved / name).read_bytes(), name
+    # the map is the same surface, voxelised on the map frame's own grid
+    a, b = read_ply(plain / "map.ply"), read_ply(moved / "map.ply")
+    dist, idx = cKDTree(b.xyz).query(turn.apply(a.xyz) + shift)
+    assert np.median(dist) < 0.03 and np.percentile(dist, 95) < 0.05
+    assert (b.label[idx] == a.label).mean() > 0.97
+    assert 0.9 < len(b) / len(a) < 1.1
+
+
+def test_bracket_mast_puts_the_camera_housing_in_the_map_but_not_in_the_image(scene_factory):
+    plain = scene_factory("junction", 3, "ideal", **TINY)
+    gear = scene_factory("junction", 3, "ideal", mast="bracket", **TINY)
+    assert (plain / "labels.png").read_bytes() == (gear / "labels.png").read_bytes()
+    truth = read_pose(gear / "ground_truth.yaml")
+
+    def behind_lens(scene: Path) -> int:
+        cloud = read_ply(scene / "map.ply")
+        pc = truth.transform_points(cloud.xyz)
+        # the housing, straight behind the optical centre and in front of the mast
+        near = (pc[:, 2] < 0.0) & (pc[:, 2] > -0.2) & (np.hypot(pc[:, 0], pc[:, 1]) < 0.12)
+        assert np.all(cloud.label[near] == KITTI_ID["pole"])
+        return int(near.sum())
+
+    assert behind_lens(plain) == 0 and behind_lens(gear) >= 3
+
+
+def test_roundabout_drive_turns_round_the_ring():
+    layout = build_layout("roundabout", np.random.default_rng(0))
+    _, positions, quats = vehicle_poses(layout, SceneOptions(), np.random.default_rng(1))
+    heading = np.unwrap(Rotation.from_quat(quats).as_euler("ZYX")[:, 0])
+    assert np.degrees(heading.max() - heading.min()) > 90.0  # a curved lidar path
+    radius = np.hypot(positions[:, 0], positions[:, 1])
+    assert radius.min() < 20.0  # it passes the island (centred on the map origin)
+    cam = np.hypot(*layout.camera_position[:2])
+    assert cam < 35.0 and 6.0 <= layout.camera_position[2] - layout.camera_ground <= 9.0
+
+
+def test_line_count_is_an_option(scene_factory):
+    ideal = scene_factory("junction", 3, "ideal", **TINY)
+    lines64 = scene_factory("junction", 3, "ideal", lines=64, **TINY)
+    assert yaml.safe_load((lines64 / "scene.yaml").read_text())["lidar"]["lines"] == 64
+    n128 = len(read_ply(ideal / "scans" / "000003.ply"))
+    assert 0.4 * n128 < len(read_ply(lines64 / "scans" / "000003.ply")) < 0.6 * n128
+
+
+def test_catalogue_covers_every_layout_and_condition():
+    entries = catalogue()
+    names = [e.name for e in entries]
+    assert len(set(names)) == len(names)
+    for kind in ("junction", "arterial", "roundabout", "highway"):
+        for row in ("ideal", "noisy_labels", "dynamic", "sparse", "lines64", "large"):
+            assert f"{kind}-{row}" in names
+    by_name = {e.name: e for e in entries}
+    assert by_name["roundabout-lines64"].options().lines == 64
+    assert by_name["highway-sparse"].variant == "sparse"
+    assert by_name["junction-pose_noise"].map_file == "map_noisy_poses.ply"
+    assert by_name["junction-large"].options().horizontal_step_deg < SIZES["full"].horizontal_step_deg
+    for e in entries:
+        e.options().validate()
+        opts = e.options()
+        assert (opts.map_frame, opts.mast, opts.write_bag) == ("random", "bracket", False)
+    legacy = catalogue(user_like=False)
+    assert {(e.options().map_frame, e.options().mast) for e in legacy} == {("layout", "pole")}
+    with pytest.raises(ValueError, match="unknown catalogue row"):
+        catalogue(rows=("foggy",))
+    with pytest.raises(ValueError, match="unknown map frame"):
+        SceneOptions(map_frame="utm").validate()

@@ -1,9 +1,14 @@
 """Synthetic roadside scenes: labelled meshes seen by a ray-cast lidar and camera.
 
-``generate_scene`` writes a scene folder in the format of docs/CONTRACTS.md; see docs/scenes.md.
+``generate_scene`` writes a scene folder in the format of docs/CONTRACTS.md; ``catalogue()``
+lists the scenes of the engine's evaluation table; see docs/scenes.md.
 """
 
-from semcal_ros.scenes.generate import SIZES, VARIANTS, SceneOptions, SceneResult, generate_scene
+from semcal_ros.scenes.catalogue import CatalogueScene, catalogue
+from semcal_ros.scenes.generate import (
+    MAP_FRAMES, MASTS, SIZES, VARIANTS, MapFrame, SceneOptions, SceneResult, generate_scene,
+)
 from semcal_ros.scenes.layouts import KINDS
 
-__all__ = ["KINDS", "SIZES", "VARIANTS", "SceneOptions", "SceneResult", "generate_scene"]
+__all__ = ["KINDS", "MAP_FRAMES", "MASTS", "SIZES", "VARIANTS", "CatalogueScene", "MapFrame",
+           "SceneOptions", "SceneResult", "catalogue", "generate_scene"]

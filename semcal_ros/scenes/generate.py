@@ -24,17 +24,19 @@ from semcal_ros.io.ply import write_ply
 from semcal_ros.mapping.filters import voxel_downsample
 from semcal_ros.labels import CITYSCAPES, SEMANTIC_KITTI, SKY, LabelMapping
 from semcal_ros.camera import CameraModel
-from semcal_ros.pose import Pose
+from semcal_ros.pose import BODY_FROM_OPTICAL, Pose
 from semcal_ros.scenes import props
 from semcal_ros.scenes.actors import Actor, Polyline, actors_at
 from semcal_ros.scenes.bag import CameraFrame, SceneBagWriter
 from semcal_ros.scenes.labelnoise import add_label_noise
-from semcal_ros.scenes.layouts import KINDS, Layout, build_layout
-from semcal_ros.scenes.mesh import LabelledMesh
+from semcal_ros.scenes.layouts import KINDS, MAST_RADIUS, Layout, build_layout, mast_xy
+from semcal_ros.scenes.mesh import LabelledMesh, MeshBuilder
 from semcal_ros.scenes.sensors import LidarSpec, World, default_camera, pixel_rays, rotate, scan
 from semcal_ros.scenes.shading import shade, to_image
 
 VARIANTS = ("ideal", "noisy_labels", "dynamic", "sparse", "pose_noise")
+MAP_FRAMES = ("layout", "random")
+MASTS = ("pole", "bracket")
 #: pose_noise only: the map accumulated with the perturbed poses (map.ply uses the true ones).
 NOISY_POSE_MAP = "map_noisy_poses.ply"
 GENERATOR_VERSION = 1
@@ -63,6 +65,8 @@ class SceneOptions:
     pose_noise_deg: float = 0.2
     threads: int = 0  # ray-casting threads, 0 = all cores
     start_stamp: float = 1_700_000_000.0
+    map_frame: str = "layout"  # "random": the whole scene rotated about z and shifted (MapFrame)
+    mast: str = "pole"  # "bracket": the camera's housing, visor and arm on the mast too
 
     def validate(self) -> None:
         if self.scans < 2:
@@ -75,13 +79,23 @@ class SceneOptions:
             raise ValueError("horizontal step must be in 0.01..5 degrees")
         if self.voxel <= 0 or self.supersample < 1:
             raise ValueError("voxel size and supersampling must be positive")
+        if self.scan_crop <= 0 or self.map_radius <= 0:
+            raise ValueError("scan crop and map radius must be positive")
+        if self.map_frame not in MAP_FRAMES:
+            raise ValueError(f"unknown map frame '{self.map_frame}' "
+                             f"(choose from {', '.join(MAP_FRAMES)})")
+        if self.mast not in MASTS:
+            raise ValueError(f"unknown mast '{self.mast}' (choose from {', '.join(MASTS)})")
 
 
 #: Named sizes of ``semcal scene --size``. ``small`` is the test and demo scene: a shorter drive
-#: centred on the camera's view (about 10 s to generate, a 5 s bag).
+#: centred on the camera's view (about 10 s to generate, a 5 s bag). ``large`` makes maps of
+#: 3 M points and more: a 0.1 deg horizontal lidar step and the paper's upper d_max (75 m) over
+#: a 75 m radius (junction seed 0: 3.8 M points; a 4 cm voxel on top gave 5.3 M).
 SIZES = {
     "full": SceneOptions(),
     "small": SceneOptions(scans=50, supersample=1),
+    "large": SceneOptions(horizontal_step_deg=0.1, scan_crop=75.0, map_radius=75.0),
 }
 
 
@@ -92,8 +106,56 @@ class SceneResult:
 
 
 def _rng(seed: int, kind: str, purpose: str) -> np.random.Generator:
-    purposes = ("layout", "actors", "image_actors", "lidar", "noise", "initial", "shading")
+    # append new purposes at the end: the index is part of every stream's seed
+    purposes = ("layout", "actors", "image_actors", "lidar", "noise", "initial", "shading",
+                "frame")
     return np.random.default_rng([int(seed), KINDS.index(kind), purposes.index(purpose)])
+
+
+@dataclass(frozen=True)
+class MapFrame:
+    """Where the layout sits in the scene's map frame: turned about z by ``yaw_deg`` (about the
+    layout's origin), then shifted by ``shift``. Users' maps start wherever their mapper started,
+    so ``map_frame: random`` draws one (any heading, 20-80 m away horizontally, +-3 m in height);
+    everything written (map, poses, ground truth, initial guess, odometry) is in this frame,
+    scans stay in the lidar frame and images are unchanged."""
+
+    yaw_deg: float = 0.0
+    shift: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator) -> "MapFrame":
+        heading = rng.uniform(0.0, 2 * np.pi)
+        distance = rng.uniform(20.0, 80.0)
+        return cls(float(rng.uniform(0.0, 360.0)),
+                   (float(distance * np.cos(heading)), float(distance * np.sin(heading)),
+                    float(rng.uniform(-3.0, 3.0))))
+
+    @property
+    def identity(self) -> bool:
+        return self.yaw_deg == 0.0 and not any(self.shift)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return Rotation.from_euler("z", self.yaw_deg, degrees=True).as_matrix()
+
+    def points(self, xyz: np.ndarray) -> np.ndarray:
+        """(N, 3) layout-frame points in the map frame."""
+        if self.identity:
+            return xyz
+        return rotate(np.asarray(xyz, float), self.rotation) + np.asarray(self.shift)
+
+    def quaternions(self, quats: np.ndarray) -> np.ndarray:
+        """(N, 4) x, y, z, w orientations in the map frame."""
+        if self.identity:
+            return quats
+        return (Rotation.from_matrix(self.rotation) * Rotation.from_quat(quats)).as_quat()
+
+    def pose(self, pose: Pose) -> Pose:
+        if self.identity:
+            return pose
+        return Pose.from_matrix(self.rotation @ pose.rotation,
+                                self.points(pose.translation[None])[0])
 
 
 class ViewCrop:
@@ -124,9 +186,14 @@ class MapAccumulator:
     removing them is the map consumer's job.
     """
 
-    def __init__(self, crop: ViewCrop, origin: np.ndarray, scan_crop: float, voxel: float) -> None:
+    def __init__(self, crop: ViewCrop, origin: np.ndarray, scan_crop: float, voxel: float,
+                 frame: MapFrame = MapFrame()) -> None:
         self.crop, self.origin = crop, np.asarray(origin, float)
         self.scan_crop, self.voxel = scan_crop, voxel
+        # crop in the layout frame, voxelise in the map frame (as a mapper would: its voxel grid
+        # is aligned with its own axes, not with the streets)
+        self.frame = frame
+        self._turn = None if frame.identity else frame.rotation.astype(np.float32)
         self._xyz: list[np.ndarray] = []
         self._labels: list[np.ndarray] = []
 
@@ -135,7 +202,7 @@ class MapAccumulator:
         near = np.einsum("ij,ij->i", xyz, xyz) <= self.scan_crop ** 2
         rel = rotate(xyz[near], rotation) + (position - self.origin).astype(np.float32)
         inside = self.crop.contains(rel)
-        self._xyz.append(rel[inside])
+        self._xyz.append(rel[inside] if self._turn is None else rotate(rel[inside], self._turn))
         self._labels.append(label[near][inside])
 
     def cloud(self) -> LabelledCloud:
@@ -149,7 +216,8 @@ class MapAccumulator:
         corner = rel.min(axis=0).astype(np.float64)
         thin = voxel_downsample(LabelledCloud((rel - corner).astype(np.float32), label),
                                 self.voxel)
-        return LabelledCloud(thin.xyz + corner + self.origin, thin.label)
+        return LabelledCloud(thin.xyz + corner + self.frame.points(self.origin[None])[0],
+                             thin.label)
 
 
 def kitti_to_train_id() -> np.ndarray:
@@ -304,7 +372,19 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     timing: dict[str, float] = {}
 
     layout = build_layout(kind, _rng(seed, kind, "layout"))
-    world = World(layout.static, options.threads)
+    truth_layout = Pose.from_body_rpy_deg(layout.camera_position,
+                                          [0.0, layout.camera_pitch_deg, layout.camera_yaw_deg])
+    static = layout.static
+    if options.mast == "bracket":
+        gear = MeshBuilder()
+        props.camera_gear(gear, truth_layout.translation,
+                          truth_layout.rotation @ BODY_FROM_OPTICAL.T,
+                          mast_xy(layout.camera_position, layout.camera_yaw_deg), MAST_RADIUS,
+                          layout.camera_ground)
+        static = LabelledMesh.concat([static, gear.build()])
+    world = World(static, options.threads)
+    frame = MapFrame.draw(_rng(seed, kind, "frame")) if options.map_frame == "random" \
+        else MapFrame()
     lines = options.lines or (32 if variant == "sparse" else 128)
     spec = LidarSpec(lines=lines, horizontal_step_deg=options.horizontal_step_deg)
     dynamic = variant == "dynamic"
@@ -320,37 +400,38 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     # camera
     t0 = time.perf_counter()
     camera = default_camera()
-    truth = Pose.from_body_rpy_deg(layout.camera_position,
-                                   [0.0, layout.camera_pitch_deg, layout.camera_yaw_deg])
-    labels, rgb = camera_images(world, truth, actors_at(image_actors, t_camera), options,
+    labels, rgb = camera_images(world, truth_layout, actors_at(image_actors, t_camera), options,
                                 variant == "noisy_labels", _rng(seed, kind, "noise"),
                                 _rng(seed, kind, "shading"))
     write_label_image(out / "labels.png", labels)
     write_rgb_image(out / "image.png", rgb)
     write_camera_info(out / "camera_info.yaml", camera)
+    truth = frame.pose(truth_layout)
     write_pose(out / "ground_truth.yaml", truth)
-    write_pose(out / "initial.yaml", perturbed_initial(truth, _rng(seed, kind, "initial")))
+    write_pose(out / "initial.yaml",
+               frame.pose(perturbed_initial(truth_layout, _rng(seed, kind, "initial"))))
     timing["camera"] = time.perf_counter() - t0
 
     # lidar drive
     t0 = time.perf_counter()
     stamps = options.start_stamp + times
-    reported_pos, reported_q = positions, quats
+    reported_pos, reported_q = positions, quats  # layout frame; written in the map frame
     if variant == "pose_noise":
         reported_pos, reported_q = perturb_poses(positions, quats, _rng(seed, kind, "noise"),
                                                  options.pose_noise_m, options.pose_noise_deg)
+    written_pos, written_q = frame.points(reported_pos), frame.quaternions(reported_q)
     scan_dir = out / "scans"
     scan_dir.mkdir()
     bag = None
     if options.write_bag:
         bag = SceneBagWriter(out / "bag", CameraFrame(camera, rgb, labels), options.camera_period)
     rng_lidar = _rng(seed, kind, "lidar")
-    view_crop = ViewCrop(truth, options.map_radius, options.map_view_margin_deg)
-    accumulators = {"map.ply": MapAccumulator(view_crop, truth.translation, options.scan_crop,
-                                              options.voxel)}
+    view_crop = ViewCrop(truth_layout, options.map_radius, options.map_view_margin_deg)
+    accumulators = {"map.ply": MapAccumulator(view_crop, truth_layout.translation,
+                                              options.scan_crop, options.voxel, frame)}
     if variant == "pose_noise":  # what accumulating with the perturbed poses would give
-        accumulators[NOISY_POSE_MAP] = MapAccumulator(view_crop, truth.translation,
-                                                      options.scan_crop, options.voxel)
+        accumulators[NOISY_POSE_MAP] = MapAccumulator(view_crop, truth_layout.translation,
+                                                      options.scan_crop, options.voxel, frame)
     directions = spec.directions()
     files = []
     scan_points = 0
@@ -365,7 +446,7 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
             if options.write_scans:
                 write_ply(scan_dir / files[-1], LabelledCloud(xyz, label, {"intensity": intensity}))
             if bag is not None:
-                bag.add_scan(float(stamps[i]), reported_pos[i], reported_q[i], xyz, intensity,
+                bag.add_scan(float(stamps[i]), written_pos[i], written_q[i], xyz, intensity,
                              label)
             accumulators["map.ply"].add(xyz, label, rot, positions[i])
             if NOISY_POSE_MAP in accumulators:
@@ -375,9 +456,10 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     finally:
         if bag is not None:
             bag.close(float(stamps[-1]))
-    _poses_yaml(scan_dir / "poses.yaml", files, stamps, reported_pos, reported_q)
+    _poses_yaml(scan_dir / "poses.yaml", files, stamps, written_pos, written_q)
     if variant == "pose_noise":
-        _poses_yaml(scan_dir / "poses_true.yaml", files, stamps, positions, quats)
+        _poses_yaml(scan_dir / "poses_true.yaml", files, stamps, frame.points(positions),
+                    frame.quaternions(quats))
     timing["lidar"] = time.perf_counter() - t0
 
     # map from the true poses (and, for pose_noise, from the perturbed ones)
@@ -400,10 +482,14 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
                   "speed": float(layout.drive_speed)},
         "camera": {"height_above_ground": float(layout.camera_position[2] - layout.camera_ground),
                    "pitch_deg": float(layout.camera_pitch_deg),
-                   "yaw_deg": float(layout.camera_yaw_deg), "stamp": float(stamps[0] + t_camera)},
+                   "yaw_deg": float(layout.camera_yaw_deg + frame.yaw_deg),  # map frame
+                   "stamp": float(stamps[0] + t_camera),
+                   "mast": options.mast},
+        "map_frame": {"yaw_deg": frame.yaw_deg, "shift": list(frame.shift),
+                      "note": "map = Rz(yaw) * layout + shift"},
         "counts": {"scans": options.scans, "scan_points": int(scan_points),
                    "map_points": len(map_cloud), "mesh_triangles": len(layout.static),
-                   "moving_actors_scans": len(scan_actors),
+                   "moving_actors_scans": len(scan_actors), "mesh_triangles_world": len(static),
                    "moving_actors_image": len(image_actors)},
         "map_classes": _class_counts(map_cloud.label),
         "image_class_fractions": {

@@ -1,4 +1,5 @@
-"""Procedural roadside layouts: an urban junction, a straight arterial road and a highway.
+"""Procedural roadside layouts: an urban junction, a straight arterial road, a highway (and the
+roundabout of roundabout.py, built from the shared pieces here).
 
 A layout is the static world (one labelled mesh), the survey vehicle's path, the infrastructure
 camera's pose, and the lanes and pavements that moving actors use. The three kinds differ in what
@@ -22,7 +23,8 @@ from semcal_ros.scenes.mesh import (
     LabelledMesh, MeshBuilder, SmoothNoise, box, cylinder, height_grid, quad, quads,
 )
 
-KINDS = ("junction", "arterial", "highway")
+#: Layout kinds; the order is part of the seeding (append new kinds at the end).
+KINDS = ("junction", "arterial", "highway", "roundabout")
 
 KERB = 0.15  # pavement height above the road
 FAR = 320.0  # roads and the ground plane extend this far, so the camera sees a horizon
@@ -52,7 +54,10 @@ class Layout:
 
 
 def build_layout(kind: str, rng: np.random.Generator) -> Layout:
-    builders = {"junction": junction, "arterial": arterial, "highway": highway}
+    from semcal_ros.scenes.roundabout import roundabout  # it builds on this module's pieces
+
+    builders = {"junction": junction, "arterial": arterial, "highway": highway,
+                "roundabout": roundabout}
     if kind not in builders:
         raise ValueError(f"unknown scene kind '{kind}' (choose from {', '.join(KINDS)})")
     return builders[kind](rng)
@@ -74,10 +79,21 @@ def aim_camera(position_xy: np.ndarray, ground: float, focus: np.ndarray,
     return np.array([position_xy[0], position_xy[1], ground + height]), pitch, float(yaw)
 
 
+#: The camera mast's distance behind the camera centre and its radius, metres.
+MAST_BACK, MAST_RADIUS = 0.35, 0.12
+
+
+def mast_xy(position: np.ndarray, yaw_deg: float) -> np.ndarray:
+    """Where the camera's mast stands: ``MAST_BACK`` behind the camera, horizontally."""
+    return np.asarray(position[:2], float) - MAST_BACK * np.array(
+        [np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))])
+
+
 def camera_mast(mb: MeshBuilder, position: np.ndarray, yaw_deg: float, ground: float) -> None:
     """The camera's own mast, a little behind the camera (the lidar sees it as a pole)."""
-    back = position[:2] - 0.35 * np.array([np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))])
-    mb.add(*cylinder(tuple(back), 0.12, ground, position[2] + 0.3, 8), props.POLE, props.METAL)
+    back = mast_xy(position, yaw_deg)
+    mb.add(*cylinder(tuple(back), MAST_RADIUS, ground, position[2] + 0.3, 8), props.POLE,
+           props.METAL)
 
 
 def dashes(x0: float, x1: float, y: float, width: float, dash: float, gap: float,

@@ -216,3 +216,64 @@ class SmoothNoise:
         for (kx, ky), ph in zip(self._k, self._phase):
             out += np.sin(kx * x + ky * y + ph)
         return out * self._amp
+
+
+def _arc_angles(radius: float, a0: float, a1: float, step: float) -> np.ndarray:
+    n = max(2, int(np.ceil(abs(a1 - a0) * max(radius, 1e-6) / step)) + 1)
+    return np.linspace(a0, a1, n)
+
+
+def annulus(center_xy: tuple[float, float], r0: float, r1: float, z: float, a0: float = 0.0,
+            a1: float = 2 * np.pi, step: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A flat ring sector between radii r0 < r1 and angles a0 < a1 (r0 = 0 gives a disc
+    sector); the outer edge is sampled about every ``step`` metres."""
+    a = _arc_angles(r1, a0, a1, step)
+    ring = np.c_[np.cos(a), np.sin(a)]
+    inner = np.c_[ring * r0 + center_xy, np.full(len(a), z)]
+    outer = np.c_[ring * r1 + center_xy, np.full(len(a), z)]
+    n = len(a)
+    i = np.arange(n - 1)
+    tris = np.concatenate([np.c_[i, i + 1, i + n + 1], np.c_[i, i + n + 1, i + n]])
+    return np.concatenate([inner, outer]), tris
+
+
+def ring_wall(center_xy: tuple[float, float], radius: float, z0: float, z1: float,
+              a0: float = 0.0, a1: float = 2 * np.pi, step: float = 1.0
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """A vertical curved wall (a kerb face) on a circle, from angle a0 to a1."""
+    a = _arc_angles(radius, a0, a1, step)
+    xy = np.c_[np.cos(a), np.sin(a)] * radius + center_xy
+    n = len(a)
+    verts = np.concatenate([np.c_[xy, np.full(n, z0)], np.c_[xy, np.full(n, z1)]])
+    i = np.arange(n - 1)
+    return verts, np.concatenate([np.c_[i, i + 1, i + n + 1], np.c_[i, i + n + 1, i + n]])
+
+
+def polar_height(center_xy: tuple[float, float], radius: float, height: "callable",
+                 rings: int = 12, step: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """A round height field z = height(r) (r from the centre) whose rim lies exactly on the
+    circle, so a raised island meets its kerb without a gap."""
+    r = np.linspace(0.0, radius, rings + 1)[1:]
+    a = np.linspace(0.0, 2 * np.pi, max(8, int(2 * np.pi * radius / step)), endpoint=False)
+    na = len(a)
+    rr, aa = np.meshgrid(r, a, indexing="ij")
+    xy = np.stack([rr * np.cos(aa), rr * np.sin(aa)], -1).reshape(-1, 2) + center_xy
+    verts = np.concatenate([[[center_xy[0], center_xy[1], float(height(np.zeros(1))[0])]],
+                            np.c_[xy, height(rr.ravel())]])
+    j = np.arange(na)
+    k = (j + 1) % na
+    tris = [np.c_[np.zeros(na, int), 1 + j, 1 + k]]  # the centre fan
+    for ring in range(rings - 1):
+        a_, b_ = 1 + ring * na, 1 + (ring + 1) * na
+        tris += [np.c_[a_ + j, a_ + k, b_ + k], np.c_[a_ + j, b_ + k, b_ + j]]
+    return verts, np.concatenate(tris)
+
+
+def oriented_box(center: np.ndarray, size: tuple[float, float, float], rotation: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """A closed box of ``size`` (x, y, z) in a frame rotated by the 3x3 ``rotation`` about its
+    centre (a camera housing aligned with the camera, not with the ground)."""
+    h = np.asarray(size, float) / 2.0
+    corners = np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+                        [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float) * h
+    return corners @ np.asarray(rotation, float).T + np.asarray(center, float), _BOX_TRIS

@@ -11,11 +11,12 @@ import numpy as np
 
 from semcal_ros.labels import KITTI_ID
 from semcal_ros.scenes.mesh import (
-    LabelledMesh, MeshBuilder, blob, box, cylinder, segment_box,
+    LabelledMesh, MeshBuilder, blob, box, cylinder, oriented_box, segment_box,
 )
 
 ROAD = KITTI_ID["road"]
 SIDEWALK = KITTI_ID["sidewalk"]
+PARKING = KITTI_ID["parking"]
 TERRAIN = KITTI_ID["terrain"]
 LANE_MARKING = KITTI_ID["lane-marking"]
 BUILDING = KITTI_ID["building"]
@@ -236,3 +237,27 @@ def person_mesh(rng: np.random.Generator, label: int) -> LabelledMesh:
     mb.add(*box((0, 0), (0.3, 0.48), 0.47 * h, 0.86 * h), label, clothes)
     mb.add(*cylinder((0, 0), 0.1, 0.86 * h, h, 8), label, (0.8, 0.62, 0.5))
     return mb.build()
+
+
+def camera_gear(mb: MeshBuilder, position: np.ndarray, body_rotation: np.ndarray,
+                mast_xy: np.ndarray, mast_radius: float, ground: float) -> None:
+    """The camera's own housing, sun visor and mounting arm (class pole, like any equipment on
+    a mast). They sit right behind and above the lens, where no camera ray goes (the housing's
+    front face is 2 cm behind the optical centre, the visor more than 55 deg above the axis),
+    but the lidar sees them: a map point a few centimetres behind the true camera lands in
+    front of any candidate pose a little further back."""
+    body = np.asarray(body_rotation, float)  # columns: forward, left, up of the camera body
+    position = np.asarray(position, float)
+    grey = (0.82, 0.82, 0.80)
+    mb.add(*oriented_box(position + body @ [-0.20, 0.0, -0.01], (0.36, 0.16, 0.15), body),
+           POLE, grey)
+    mb.add(*oriented_box(position + body @ [-0.16, 0.0, 0.10], (0.48, 0.22, 0.01), body),
+           POLE, grey)
+    under = position + body @ [-0.14, 0.0, -0.09]  # the arm: housing bottom to the mast
+    mb.add(*segment_box(under[:2], mast_xy, 0.06, under[2] - 0.12, under[2]), POLE, METAL)
+    toward = np.asarray(mast_xy, float) - position[:2]
+    if np.hypot(*toward) > mast_radius:  # a cabinet on the mast, 2.5-3.3 m up, facing the road
+        d = toward / np.hypot(*toward)
+        cab = np.asarray(mast_xy, float) + d * (mast_radius + 0.12)
+        mb.add(*box(tuple(cab), (0.25, 0.4), ground + 2.5, ground + 3.3,
+                    float(np.arctan2(d[1], d[0]))), POLE, grey)
