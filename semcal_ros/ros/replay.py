@@ -42,6 +42,9 @@ class ReplayParams:
     start_delay: float = 1.0
     ack_timeout: float = 10.0  # s to wait for reliable subscribers to acknowledge at the end
     depth: int = 10  # publisher history depth (transient-local topics keep their recorded one)
+    # read every message once before playing: chunk CRCs checked, every message decoded (a
+    # damaged bag is refused instead of publishing garbage); ~0.35 s per 160 MB
+    verify: bool = True
 
     def __post_init__(self) -> None:
         if not (self.rate > 0 and math.isfinite(self.rate)):
@@ -85,6 +88,66 @@ def open_bag(path: str | Path):
     return reader
 
 
+@dataclass
+class BagCheck:
+    errors: list[str] = field(default_factory=list)  # the bag is damaged
+    notes: list[str] = field(default_factory=list)  # what could not be checked
+
+
+def _mcap_chunk_crcs(path: Path) -> list[int]:
+    """The CRC field of every chunk record of an mcap file (0: the writer stored none)."""
+    import struct
+
+    crcs = []
+    with open(path, "rb") as f:
+        f.seek(8)  # magic
+        while True:
+            head = f.read(9)
+            if len(head) < 9 or head[0] in (0x02, 0x0F):  # footer / data end: no more chunks
+                break
+            op, length = head[0], struct.unpack_from("<Q", head, 1)[0]
+            if op == 0x06:  # chunk: start time, end time, uncompressed size, crc, ...
+                crcs.append(struct.unpack_from("<I", f.read(28), 24)[0])
+                f.seek(length - 28, 1)
+            else:
+                f.seek(length, 1)
+    return crcs
+
+
+def verify_bag(path: str | Path) -> BagCheck:
+    """Read every message of the bag once: a chunk whose CRC does not match (rosbags checks the
+    CRCs the writer stored) or a message that no longer decodes is an error; what the storage
+    cannot tell (an mcap without CRCs, sqlite3 has none) is a note."""
+    from rosbags.typesys import Stores, get_typestore
+
+    check = BagCheck()
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    reader = open_bag(path)
+    count, where = 0, "at the start"
+    try:
+        for conn, stamp_ns, raw in reader.messages():
+            where = f"after message {count} ({conn.topic} at {stamp_ns * 1e-9:.3f} s)"
+            if conn.msgtype in typestore.types:
+                try:
+                    typestore.deserialize_cdr(raw, conn.msgtype)
+                except Exception as exc:  # noqa: BLE001 - any decoding failure is damage
+                    check.errors.append(f"message {count} on {conn.topic} at "
+                                        f"{stamp_ns * 1e-9:.3f} s does not decode as "
+                                        f"{conn.msgtype} ({type(exc).__name__}: {exc})")
+                    break
+            count += 1
+    except Exception as exc:  # noqa: BLE001 - rosbags' ReaderError and struct errors alike
+        check.errors.append(f"damaged {where}: {exc}".rstrip("."))
+    finally:
+        reader.close()
+    folder = Path(path) if Path(path).is_dir() else Path(path).parent
+    mcaps = sorted(folder.glob("*.mcap"))
+    if not check.errors and mcaps and any(c == 0 for m in mcaps for c in _mcap_chunk_crcs(m)):
+        check.notes.append("its chunks carry no CRC (written by rosbags?): damage inside "
+                           "message data cannot be detected")
+    return check
+
+
 def message_class(msgtype: str) -> Any:
     """The rclpy message class of ``pkg/msg/Name`` (ImportError if the package is missing)."""
     parts = msgtype.split("/")
@@ -117,6 +180,12 @@ class BagReplay:
             raise ValueError("no bag given (parameter 'bag')")
         self.node, self.params = node, params
         self.log = log or (lambda text: node.get_logger().info(text))
+        if params.verify:
+            check = verify_bag(params.bag)
+            if check.errors:
+                raise ValueError(f"{params.bag}: {check.errors[0]}")
+            for note in check.notes:
+                node.get_logger().warning(f"{params.bag}: {note}")
         self.reader = open_bag(params.bag)
         self.stats = ReplayStats()
         self.publishers: dict[str, Any] = {}

@@ -39,7 +39,14 @@ class SegmenterNode(Node):
         super().__init__(name)
         self.opts = declare_and_read(self, defaults)
         require_model(self.opts.model, self.opts.model_config)
-        self.segmenter = self.load(self.opts)
+        try:
+            self.segmenter = self.load(self.opts)
+        except (ValueError, FileNotFoundError):
+            raise
+        except Exception as exc:  # onnxruntime's own errors: one line, naming the parameter
+            first = (str(exc).strip().splitlines() or [""])[0]
+            raise ValueError(f"parameter 'model': cannot load {self.opts.model} "
+                             f"({type(exc).__name__}: {first})") from None
         overrides = qos.overridable()
         depth = max(self.opts.queue_size, 2)
         self.publisher = self.create_publisher(self.msg_type, self.out_topic, qos.sensor(depth),

@@ -10,8 +10,14 @@ The work happens in a thread of its own, so a slow registration never blocks the
 callbacks only convert and enqueue. The map (x, y, z, label) is published on ``map`` (transient
 local: a calibrator started later still gets it) at most every ``publish_period`` seconds while it
 changes. Services: ``~/save_map`` (semcal_interfaces/SaveMap: PLY file) and ``~/reset``
-(std_srvs/Trigger). A scan older than the previous one by more than ``time_jump`` seconds (a bag
-started over, a simulator reset) resets the map when ``reset_on_time_jump`` is set.
+(std_srvs/Trigger).
+
+Time going back (a bag started over, a simulator reset) resets the map when
+``reset_on_time_jump`` is set, but only when it is sustained: ``jump_confirm`` messages in a row
+(scans or poses, in arrival order) more than ``time_jump`` s older than the newest one, or
+``/clock`` going back by more than ``time_jump``. Fewer such messages are strays (a late packet, a
+driver's bad stamp): they are dropped with a warning and the map stays. A reset is a warning in
+the log and in the diagnostics (``resets``, ``last_reset``).
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
@@ -53,7 +60,8 @@ class MapBuilderNodeParams:
     publish_period: float = 2.0  # s between map publications while the map changes
     queue_size: int = 50  # scans waiting for their pose or for the builder (oldest dropped)
     reset_on_time_jump: bool = True
-    time_jump: float = 1.0  # s a scan may be older than the previous before it counts as a jump
+    time_jump: float = 1.0  # s a message may be older than the newest before it counts as behind
+    jump_confirm: int = 3  # messages behind in a row that make a jump (fewer: strays, dropped)
     save_path: str = "map.ply"  # default file of ~/save_map
     diagnostics_period: float = 1.0  # s (0: off)
     mapping: MapBuildParams = field(default_factory=MapBuildParams)
@@ -63,6 +71,9 @@ class MapBuilderNodeParams:
             raise ValueError("lidar_extrinsic must be [x, y, z, qx, qy, qz, qw]")
         if self.queue_size < 1 or self.publish_period <= 0:
             raise ValueError("queue_size must be >= 1 and publish_period > 0")
+        if not (self.time_jump > 0 and self.jump_confirm >= 1):
+            raise ValueError(f"time_jump must be > 0 s and jump_confirm >= 1, got "
+                             f"{self.time_jump}, {self.jump_confirm}")
 
     def extrinsic(self) -> np.ndarray:
         pose = Pose(np.array(self.lidar_extrinsic[:3]), np.array(self.lidar_extrinsic[3:]))
@@ -79,6 +90,7 @@ class _Counts:
     dropped_no_pose: int = 0  # older than every pose kept
     ignored_full: int = 0
     resets: int = 0
+    strays: int = 0  # messages far behind the newest, dropped (not enough in a row for a jump)
     rejected: dict[str, int] = field(default_factory=dict)
 
 
@@ -100,6 +112,16 @@ class MapBuilderNode(Node):
         self._last_publish = 0.0
         self._last_stamp: float | None = None
         self._stop = False
+        # time-jump detection, in arrival order (callbacks): the newest stamp of a scan or pose,
+        # the messages behind it held back, the last /clock, and a reset for the worker to apply
+        self._newest: float | None = None
+        self._behind: list[tuple[str, float, Any]] = []
+        self._last_clock: float | None = None
+        self._reset_request: tuple[float, float, str] | None = None
+        self.last_reset = ""
+        self._newest_pose: float | None = None  # stamp, and arrival (monotonic) of the newest pose
+        self._pose_arrival: float | None = None
+        self._queue_warned = 0.0
         self.published = (0, 0)  # (points, scans) of the last map published
 
         overrides = qos.overridable()
@@ -110,6 +132,8 @@ class MapBuilderNode(Node):
                                  callback_group=inputs, qos_overriding_options=overrides)
         self.create_subscription(PoseStamped, "pose", self._on_pose, qos.sensor(50),
                                  callback_group=inputs, qos_overriding_options=overrides)
+        self.create_subscription(Clock, "/clock", self._on_clock, qos.reliable(10),
+                                 callback_group=inputs)
         self.map_pub = self.create_publisher(PointCloud2, "map", qos.latched(),
                                              qos_overriding_options=overrides)
         services = MutuallyExclusiveCallbackGroup()
@@ -146,12 +170,7 @@ class MapBuilderNode(Node):
         except ValueError as exc:
             self._rejected("fields", f"scan ignored: {exc}")
             return
-        with self._wake:
-            self._scans.append((conv.stamp_to_seconds(msg.header.stamp), msg))
-            while len(self._scans) > self.opts.queue_size:
-                self._scans.popleft()
-                self.counts.dropped_queue += 1
-            self._wake.notify()
+        self._arrive("scan", conv.stamp_to_seconds(msg.header.stamp), msg)
 
     def _on_pose(self, msg: Any) -> None:
         try:
@@ -161,9 +180,93 @@ class MapBuilderNode(Node):
             return
         if not self.frame:
             self.frame = frame or "map"
+        self._arrive("pose", stamp, pose)
+
+    def _on_clock(self, msg: Clock) -> None:
+        """``/clock`` going back by more than ``time_jump`` is a jump at once (a simulator or
+        a looping player said so)."""
+        stamp = conv.stamp_to_seconds(msg.clock)
         with self._wake:
-            self._poses.append((stamp, pose))
-            self._wake.notify()
+            previous, self._last_clock = self._last_clock, stamp
+            if previous is None or stamp >= previous - self.opts.time_jump \
+                    or not self.opts.reset_on_time_jump or self._newest is None:
+                return
+            self._jump(f"/clock went back from {previous:.3f} s to {stamp:.3f} s", stamp)
+
+    # --- time going back: strays and jumps (callbacks, arrival order) -----------------------
+    def _arrive(self, kind: str, stamp: float, item: Any) -> None:
+        """Queue a scan or pose, or hold it back while it is far behind the newest stamp."""
+        with self._wake:
+            newest = self._newest
+            if newest is not None and stamp < newest - self.opts.time_jump:
+                if not self.opts.reset_on_time_jump:
+                    self._stray(kind, stamp, newest, "reset_on_time_jump is false")
+                    return
+                self._behind.append((kind, stamp, item))
+                if len(self._behind) >= self.opts.jump_confirm:
+                    self._jump(f"{len(self._behind)} messages in a row more than "
+                               f"{self.opts.time_jump:g} s older than {newest:.3f} s",
+                               max(s for _, s, _ in self._behind))
+                return
+            for held_kind, held_stamp, _ in self._behind:  # not sustained: strays
+                self._stray(held_kind, held_stamp, newest,
+                            f"time counts as jumped back after {self.opts.jump_confirm} in a row")
+            self._behind = []
+            self._newest = stamp if newest is None else max(newest, stamp)
+            self._enqueue(kind, stamp, item)
+
+    def _stray(self, kind: str, stamp: float, newest: float, why: str) -> None:
+        self.counts.strays += 1
+        self._rejected("stray", f"{kind} at {stamp:.3f} s is {newest - stamp:.1f} s older than "
+                                f"the newest ({newest:.3f} s): dropped ({why})")
+
+    def _jump(self, reason: str, newest: float) -> None:
+        """(under ``_wake``) Time went back: drop what is queued of the old pass, ask the
+        worker to reset the map, and queue the held-back messages of the new pass."""
+        previous = self._newest if self._newest is not None else newest
+        self._scans.clear()
+        self._poses.clear()
+        self._reset_request = (previous, newest, reason)
+        self._newest = newest
+        held, self._behind = self._behind, []
+        for kind, stamp, item in held:
+            self._enqueue(kind, stamp, item)
+        self._wake.notify()
+
+    def _enqueue(self, kind: str, stamp: float, item: Any) -> None:
+        """(under ``_wake``) Hand a scan or pose to the worker."""
+        if kind == "pose":
+            self._poses.append((stamp, item))
+            self._newest_pose, self._pose_arrival = stamp, time.monotonic()
+        else:
+            self._scans.append((stamp, item))
+            while len(self._scans) > self.opts.queue_size:
+                self._scans.popleft()
+                self.counts.dropped_queue += 1
+                waiting = self._poses_missing()
+                if waiting and time.monotonic() - self._queue_warned > 5.0:  # not per scan
+                    self._queue_warned = time.monotonic()
+                    self._rejected("queue", f"scans dropped (queue full): {waiting}")
+        self._wake.notify()
+
+    def _poses_missing(self) -> str:
+        """(under ``_wake``) Why queued scans wait, when it is for poses that do not come."""
+        if not self._scans:
+            return ""
+        newest_scan = self._scans[-1][0]
+        if self._newest_pose is not None and \
+                newest_scan <= self._newest_pose + self.opts.mapping.pose_tolerance:
+            return ""
+        if self._newest_pose is None:
+            return (f"no pose received yet on '{self.resolve_topic_name('odom')}' or "
+                    f"'{self.resolve_topic_name('pose')}'; {len(self._scans)} scans wait")
+        age = time.monotonic() - (self._pose_arrival or 0.0)
+        if age < 1.0:
+            return ""
+        return (f"no pose for {age:.1f} s (newest at {self._newest_pose:.3f} s, the newest scan "
+                f"at {newest_scan:.3f} s): {len(self._scans)} scans wait for their poses; is "
+                f"'{self.resolve_topic_name('odom')}' or '{self.resolve_topic_name('pose')}' "
+                f"publishing?")
 
     def _rejected(self, kind: str, text: str) -> None:
         self.counts.rejected[kind] = self.counts.rejected.get(kind, 0) + 1
@@ -179,8 +282,11 @@ class MapBuilderNode(Node):
                 if self._stop:
                     return
                 poses, self._poses = list(self._poses), deque()
+                reset, self._reset_request = self._reset_request, None
             try:
                 with self._builder_lock:
+                    if reset is not None:
+                        self._apply_reset(*reset)
                     for stamp, pose in poses:
                         self._add_pose(stamp, pose)
                     self._drain_scans()
@@ -188,52 +294,37 @@ class MapBuilderNode(Node):
             except Exception as exc:  # noqa: BLE001 - keep building; say what went wrong
                 self._rejected("internal", f"map builder error: {type(exc).__name__}: {exc}")
 
-    def _jumped(self, stamp: float, previous: float | None) -> bool:
-        return previous is not None and stamp < previous - self.opts.time_jump
-
     def _add_pose(self, stamp: float, pose: Pose) -> None:
         span = self.builder.poses.span()
         if span is not None and stamp < span[1]:
-            if not (self._jumped(stamp, span[1]) and self.opts.reset_on_time_jump):
-                self._rejected("pose_order", f"pose at {stamp:.3f} s is older than the "
-                                             f"previous one ({span[1]:.3f} s); ignored")
-                return
-            self._time_jump(stamp, span[1])
+            self._rejected("pose_order", f"pose at {stamp:.3f} s is older than the previous one "
+                                         f"({span[1]:.3f} s); ignored")
+            return
         self.builder.add_pose(stamp, pose)
 
-    def _time_jump(self, stamp: float, previous: float) -> None:
-        """Time went back (a bag started over): forget the map, the poses and queued scans of
-        the old pass."""
-        self.get_logger().info(f"time jumped back {previous - stamp:.1f} s: map reset")
-        with self._wake:
-            self._scans = deque(item for item in self._scans
-                                if item[0] <= stamp + self.opts.time_jump)
+    def _apply_reset(self, previous: float, stamp: float, reason: str) -> None:
+        """Time went back: forget the map and the poses of the old pass (the worker, with the
+        builder lock held)."""
+        scans, points = self.builder.scan_count, self.published[0]
+        self.last_reset = (f"time jumped back {previous - stamp:.1f} s ({reason}): map of "
+                           f"{scans} scans ({points} points published) reset")
+        self.get_logger().warning(self.last_reset)
         self._reset_builder()
 
     def _next_scan(self) -> tuple[float, PointCloud2] | None:
         """The oldest queued scan once its pose can be interpolated (or never will be)."""
         with self._wake:
-            if not self._scans:
-                return None
+            if not self._scans or self._reset_request is not None:
+                return None  # a reset is due first
             stamp = self._scans[0][0]
             span = self.builder.poses.span()
-            if not self._jumped(stamp, self._last_stamp) and (
-                    span is None or stamp > span[1] + self.opts.mapping.pose_tolerance):
+            if span is None or stamp > span[1] + self.opts.mapping.pose_tolerance:
                 return None  # its pose has not arrived yet
             return self._scans.popleft()
 
     def _drain_scans(self) -> None:
         while (item := self._next_scan()) is not None:
             stamp, msg = item
-            if self._jumped(stamp, self._last_stamp):
-                if not self.opts.reset_on_time_jump:
-                    self._rejected("order", f"scan at {stamp:.3f} s is older than the previous "
-                                            f"({self._last_stamp:.3f} s); ignored")
-                    continue
-                self._time_jump(stamp, self._last_stamp)
-                with self._wake:
-                    self._scans.appendleft(item)  # waits for the new pass's poses
-                continue
             if self.builder.is_full:
                 self.counts.ignored_full += 1
                 continue
@@ -242,7 +333,13 @@ class MapBuilderNode(Node):
                 self.counts.dropped_no_pose += 1  # older than every pose kept
                 continue
             try:
-                self.builder.add_scan(conv.pointcloud2_to_cloud(msg), None, stamp)
+                cloud = conv.pointcloud2_to_cloud(msg)
+                if not np.any(np.all(np.isfinite(cloud.xyz), axis=1)):
+                    what = "has no points" if len(cloud) == 0 else \
+                        f"has only NaN or infinite points ({len(cloud)})"
+                    self._rejected("nan", f"scan at {stamp:.3f} s {what}; ignored")
+                    continue
+                self.builder.add_scan(cloud, None, stamp)
             except ScanRejected as exc:
                 self.builder.skipped.clear()  # counted here; the list would grow forever
                 self._rejected(exc.kind, str(exc))
@@ -300,6 +397,8 @@ class MapBuilderNode(Node):
             dropped = len(self._scans)
             self._scans.clear()
             self._poses.clear()
+            self._behind = []
+            self._reset_request = None
         with self._builder_lock:
             self._reset_builder()
         self._maybe_publish(force=True)
@@ -313,15 +412,19 @@ class MapBuilderNode(Node):
         c = self.counts
         with self._wake:
             queued = len(self._scans)
+            waiting = self._poses_missing()
         values = {
             "scans_received": c.received, "scans_accepted": c.accepted,
             "scans_queued": queued, "dropped_queue_full": c.dropped_queue,
             "dropped_no_pose": c.dropped_no_pose, "ignored_map_full": c.ignored_full,
-            "resets": c.resets, "map_points": self.published[0],
+            "resets": c.resets, "last_reset": self.last_reset or "none",
+            "strays_dropped": c.strays, "map_points": self.published[0],
             "map_scans": self.published[1],
             "poses": len(self.builder.poses), "last_error": self.last_error or "none",
         }
         values.update({f"rejected.{k}": v for k, v in c.rejected.items()})
+        if waiting:
+            return Level.WARN, waiting, values
         if c.received and not c.accepted:
             return Level.WARN, self.last_error or "no scan accepted yet (waiting for poses?)", \
                 values
