@@ -18,10 +18,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from semcal_ros.cloud import LabelledCloud
+
+if TYPE_CHECKING:
+    from semcal_ros.camera import CameraModel
 
 
 def _require_file(path: str | Path, what: str) -> Path:
@@ -174,3 +178,29 @@ def open_sequence(root: str | Path, frame: str = "lidar0") -> KittiSequence:
     idx = np.array(indices)
     return KittiSequence(root, scans, labels, lidar_poses(cam_poses[idx], calib["Tr"], frame),
                          times[idx], calib)
+
+
+def camera_from_calib(calib: dict[str, np.ndarray], width: int, height: int,
+                      camera: str = "P2") -> tuple["CameraModel", np.ndarray]:
+    """A rectified KITTI camera: its model and its extrinsic ``T_cam_lidar`` (4x4).
+
+    ``P = K [I | t]`` (rectified, no distortion): ``t = K^-1 P[:, 3]`` is the camera's offset from
+    cam0, so a lidar point reaches the camera frame through ``[I | t] @ Tr``. ``Tr``'s rotation is
+    stored with 10 digits and is not exactly orthonormal; it is projected onto the nearest
+    rotation (SVD) so the pose is a proper rigid transform (the change is below 1e-4 deg).
+    """
+    from semcal_ros.camera import CameraModel
+
+    if camera not in calib:
+        raise ValueError(f"calibration has no '{camera}' projection matrix "
+                         f"(has: {', '.join(sorted(calib))})")
+    p = np.asarray(calib[camera], float)
+    k = p[:, :3]
+    if abs(k[1, 0]) > 1e-9 or abs(k[2, 0]) > 1e-9 or abs(k[2, 1]) > 1e-9 or k[2, 2] != 1:
+        raise ValueError(f"'{camera}' is not a rectified projection K [I | t]")
+    offset = np.eye(4)
+    offset[:3, 3] = np.linalg.solve(k, p[:, 3])
+    tr = np.array(calib["Tr"], float)
+    u, _, vt = np.linalg.svd(tr[:3, :3])
+    tr[:3, :3] = u @ vt
+    return CameraModel(width, height, k, np.zeros(5)), offset @ tr
