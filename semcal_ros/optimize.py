@@ -1,9 +1,18 @@
-"""Registration of a labelled map to a label image: Nelder-Mead over the camera pose.
+"""The search: Nelder-Mead over the camera pose, coarse to fine, from several starts.
 
-``calibrate`` is the whole method of the paper in one call: the map is prepared once, the loss is
-minimised by Nelder-Mead stages from coarse (quarter image, an eighth of the points) to fine (full
-image, all points), and verification runs from noisy initial guesses guard against the non-convex
-loss: the lowest loss wins and the accepted runs' spread says how well-posed the result is.
+``calibrate`` is the paper's whole procedure in one call: the map is prepared once (a
+:class:`~semcal_ros.problem.Problem`), then :func:`solve` runs
+
+1. the first, coarse stage (quarter resolution, thinned far points) from the initial guess and from
+   ``verification.starts`` perturbed guesses (the paper's verification runs);
+2. merges starts that ended in the same place (one basin) and ranks the basins by coarse loss;
+3. refines the best basin, and any distinct basin whose coarse loss is within
+   ``verification.refine_margin`` of it, through the finer stages and the paper's restarts of the
+   last stage (at most ``refine_max``);
+4. returns the refined pose of lowest full-resolution loss, with how many starts agreed on it.
+
+Full-resolution renders cost ten times a coarse one, so they are spent only where they can change
+the answer; docs/engine.md has the measurements behind each choice.
 """
 
 from __future__ import annotations
@@ -17,12 +26,10 @@ from scipy.optimize import minimize
 
 from semcal_ros.camera import CameraModel
 from semcal_ros.cloud import LabelledCloud
-from semcal_ros.labels import INVALID, LabelMapping
-from semcal_ros.loss import LabelLoss
+from semcal_ros.labels import LabelMapping
 from semcal_ros.params import CalibrationParams
 from semcal_ros.pose import Pose, rotation_error_deg, translation_error
-from semcal_ros.render import PreparedMap, make_view, prepare_map
-from semcal_ros.render.fast import render
+from semcal_ros.problem import Problem
 
 
 class Cancelled(Exception):
@@ -33,18 +40,21 @@ class Cancelled(Exception):
 class Progress:
     stage: str
     evaluations: int
-    best_loss: float
+    best_loss: float  # best of the running stage (losses of different resolutions differ)
     best_pose: Pose
 
 
 @dataclass(frozen=True)
 class RunResult:
-    """One schedule from one start: the final loss is at full resolution, comparable across runs."""
+    """One start: where its coarse stage ended, and the full schedule's result if refined."""
 
     start: Pose
-    pose: Pose
-    loss: float
+    pose: Pose  # refined pose, or the coarse one when the start was not refined
+    loss: float  # full-resolution loss when refined, else the coarse loss
     evaluations: int
+    coarse_loss: float
+    refined: bool
+    basin: int  # index of the basin (0 = the one of the result)
 
 
 @dataclass
@@ -55,9 +65,10 @@ class CalibrationResult:
     seconds: float
     history: list[tuple[int, int, float]] = field(default_factory=list)  # (run, stage, loss)
     runs: list[RunResult] = field(default_factory=list)
-    accepted: int = 1
-    spread_translation_m: float = 0.0
+    accepted: int = 1  # starts that ended in the result's basin
+    spread_translation_m: float = 0.0  # RMS distance of those starts' poses from the result
     spread_rotation_deg: float = 0.0
+    coverage: float = 0.0  # share of the target's non-sky pixels the map covers at the result
 
     def to_dict(self) -> dict:
         """The fields a result pose YAML adds to the pose itself."""
@@ -66,8 +77,10 @@ class CalibrationResult:
             "evaluations": int(self.evaluations),
             "seconds": round(float(self.seconds), 3),
             "rpy_deg": [float(v) for v in self.pose.body_rpy_deg()],
+            "coverage": round(float(self.coverage), 4),
             "verification": {
                 "runs": len(self.runs),
+                "refined": sum(r.refined for r in self.runs),
                 "accepted": int(self.accepted),
                 "spread_translation_m": float(self.spread_translation_m),
                 "spread_rotation_deg": float(self.spread_rotation_deg),
@@ -75,23 +88,8 @@ class CalibrationResult:
         }
 
 
-@dataclass
-class _Stage:
-    pmap: PreparedMap
-    camera: CameraModel
-    loss: LabelLoss
-    splat_lambda: float
-    radius_max: float
-    bounds: np.ndarray
-    depth_falloff: float
-
-
-class _Tracker:
-    """Counts evaluations, records history, reports progress, honours cancellation.
-
-    Progress carries the best loss and pose of the stage being run: losses of different stages
-    (resolutions) are not comparable, so a single running minimum would mislead.
-    """
+class _Counter:
+    """Counts evaluations, records history, reports progress, honours cancellation."""
 
     def __init__(self, progress: Callable[[Progress], None] | None,
                  should_stop: Callable[[], bool] | None, interval: float = 0.25) -> None:
@@ -99,136 +97,92 @@ class _Tracker:
         self.evaluations = 0
         self.history: list[tuple[int, int, float]] = []
         self.stage = "start"
-        self.stage_loss = np.inf
-        self.stage_pose: Pose | None = None
+        self._best: tuple[float, Pose] | None = None
         self._last_report = 0.0
 
     def begin_stage(self, name: str) -> None:
-        self.stage, self.stage_loss, self.stage_pose = name, np.inf, None
+        self.stage, self._best = name, None
 
     def record(self, run: int, stage: int, loss: float, pose: Pose) -> None:
         if self.should_stop is not None and self.should_stop():
             raise Cancelled("calibration cancelled")
         self.evaluations += 1
         self.history.append((run, stage, loss))
-        if loss < self.stage_loss:
-            self.stage_loss, self.stage_pose = loss, pose
+        if self._best is None or loss < self._best[0]:
+            self._best = (loss, pose)
         now = time.monotonic()
         if now - self._last_report >= self.interval:
             self._last_report = now
             self.report()
 
     def report(self) -> None:
-        if self.progress is not None and self.stage_pose is not None:
-            self.progress(Progress(self.stage, self.evaluations, float(self.stage_loss),
-                                   self.stage_pose))
+        if self.progress is not None and self._best is not None:
+            self.progress(Progress(self.stage, self.evaluations, float(self._best[0]),
+                                   self._best[1]))
 
 
-class Registration:
-    """A map, a target and a camera made ready for many loss evaluations."""
+class Search:
+    """Nelder-Mead on one problem, in units of the search bounds around a centre pose."""
 
-    def __init__(self, map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel,
-                 initial: Pose, params: CalibrationParams, mapping: LabelMapping | None = None) -> None:
-        mapping = mapping or LabelMapping()
-        target = np.asarray(target)
-        if target.ndim != 2 or target.dtype != np.uint8:
-            raise ValueError(f"label image must be a single-channel uint8 image, got {target.dtype} "
-                             f"with shape {target.shape}")
-        if target.shape != (camera.height, camera.width):
-            raise ValueError(f"label image is {target.shape[1]}x{target.shape[0]} but camera_info "
-                             f"says {camera.width}x{camera.height}")
-        if len(map_cloud) and not np.all(np.isfinite(map_cloud.xyz)):
-            bad = int((~np.all(np.isfinite(map_cloud.xyz), axis=1)).sum())
-            raise ValueError(f"map contains {bad} NaN or infinite points")
-        self.params = params
-        self.initial = initial
-        radius = params.render.crop_radius or None
-        self.pmap = prepare_map(map_cloud, mapping, center=initial.translation, radius=radius)
-        aligned_target = mapping.map_image(target)
-        if np.all(aligned_target == INVALID):
-            raise ValueError("label image has no pixel of a class the map can match")
-        self.splat_lambda = params.render.splat_lambda_for(self.pmap.point_spacing(), camera.fx)
-        self.stages = [self._stage(aligned_target, camera, s) for s in range(len(params.schedule.scales))]
+    def __init__(self, problem: Problem, counter: _Counter) -> None:
+        self.problem, self.counter = problem, counter
+        sp = problem.params.search
         # free parameters (x, y, z, [roll], pitch, yaw) and their search bounds
-        sp = params.search
         self.free = np.array([0, 1, 2] + ([3] if sp.free_roll else []) + [4, 5])
         bounds = np.array([*sp.bound_xyz, np.radians(sp.bound_roll_deg),
                            np.radians(sp.bound_pitch_deg), np.radians(sp.bound_yaw_deg)])
         self.scale = bounds[self.free]
 
-    def _stage(self, aligned_target: np.ndarray, camera: CameraModel, index: int) -> _Stage:
-        sch, rp = self.params.schedule, self.params.render
-        factor = int(sch.scales[index])
-        cam = camera.scaled(factor)
-        off = factor // 2
-        target = np.ascontiguousarray(aligned_target[off::factor, off::factor][:cam.height, :cam.width])
-        radius_max = max(1.0, rp.radius_max / factor)
-        pmap = self.pmap.subset(sch.point_fractions[index])
-        # discs grow with the point spacing of the thinned map, as if it were the full map
-        thinning = np.sqrt(len(self.pmap) / len(pmap))
-        return _Stage(
-            pmap=pmap, camera=cam, loss=LabelLoss(target, self.params.loss),
-            splat_lambda=self.splat_lambda / factor * thinning,
-            depth_falloff=rp.depth_falloff if factor == 1 else rp.depth_falloff_coarse,
-            radius_max=radius_max, bounds=np.asarray(cam.normalized_bounds(margin_px=radius_max)),
-        )
-
-    def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
-        st = self.stages[stage]
-        rp = self.params.render
-        view = make_view(st.camera, pose, st.pmap.origin, st.splat_lambda, st.radius_max,
-                         rp.near, rp.far, st.bounds, st.depth_falloff, rp.core_fraction)
-        return render(st.pmap, view)
-
-    def loss(self, pose: Pose, stage: int = -1) -> float:
-        return self.stages[stage].loss(self.render(pose, stage))
-
-    def coverage(self, pose: Pose, stage: int = 0) -> float:
-        return self.stages[stage].loss.evaluate(self.render(pose, stage))[1]
-
     def pose_at(self, center: np.ndarray, s: np.ndarray) -> Pose:
-        v = center.copy()
+        v = np.array(center, dtype=float)
         v[self.free] += self.scale * s
         return Pose.from_vector(v)
 
-    def run(self, start: Pose, tracker: _Tracker, run_index: int, label: str) -> RunResult:
-        """The coarse-to-fine schedule from one start, then the paper's restarts of the last
-        stage from its own result while they still lower the loss."""
-        sch = self.params.schedule
-        center = start.vector()
-        evals0 = tracker.evaluations
-        n_stages = len(sch.scales)
-        for k in range(n_stages):
-            tracker.begin_stage(f"{label}, stage {k + 1}/{n_stages} (1/{sch.scales[k]} resolution)")
-            center = self._nelder_mead(k, center, tracker, run_index)
-        last = n_stages - 1
-        name = tracker.stage
-        for r in range(sch.final_restarts):
-            before = tracker.stage_loss
-            tracker.stage = f"{name}, restart {r + 1}"  # same stage: its best carries over
-            center = self._nelder_mead(last, center, tracker, run_index)
-            if before - tracker.stage_loss <= sch.fatol[last]:
-                break
-        tracker.report()
-        return RunResult(start, tracker.stage_pose, float(tracker.stage_loss),
-                         tracker.evaluations - evals0)
-
-    def _nelder_mead(self, k: int, center: np.ndarray, tracker: _Tracker, run_index: int) -> np.ndarray:
-        """One Nelder-Mead search of stage ``k`` around ``center``; returns the best pose seen."""
-        sch = self.params.schedule
+    def nelder_mead(self, stage: int, center: np.ndarray, run: int) -> tuple[np.ndarray, float]:
+        """One Nelder-Mead search of ``stage`` around ``center``: the best pose it evaluated
+        (not its last simplex vertex) and that pose's loss."""
+        st = self.problem.stages[stage]
+        best: list = [np.inf, center]
 
         def objective(s: np.ndarray) -> float:
             pose = self.pose_at(center, s)
-            value = self.loss(pose, k)
-            tracker.record(run_index, k, value, pose)
+            value = self.problem.loss(pose, stage)
+            self.counter.record(run, stage, value, pose)
+            if value < best[0]:
+                best[0], best[1] = value, pose.vector()
             return value
 
         n = len(self.free)
         minimize(objective, np.zeros(n), method="Nelder-Mead",
-                 options={"initial_simplex": _initial_simplex(n) * sch.simplex[k],
-                          "xatol": sch.xatol, "fatol": sch.fatol[k],
-                          "maxfev": sch.max_evaluations[k]})
-        return tracker.stage_pose.vector()  # the best seen, not Nelder-Mead's last vertex
+                 options={"initial_simplex": _initial_simplex(n) * st.simplex,
+                          "xatol": self.problem.params.schedule.xatol, "fatol": st.fatol,
+                          "maxfev": st.max_evaluations})
+        return best[1], float(best[0])
+
+    def coarse(self, start: Pose, run: int, label: str) -> tuple[np.ndarray, float]:
+        self.counter.begin_stage(f"{label}, stage 1/{len(self.problem.stages)} "
+                                 f"(1/{self.problem.stages[0].scale} resolution)")
+        return self.nelder_mead(0, start.vector(), run)
+
+    def refine(self, center: np.ndarray, loss: float, run: int, label: str
+               ) -> tuple[np.ndarray, float]:
+        """The stages after the first, then the paper's restarts of the last stage from its own
+        result while they still lower the loss."""
+        stages = self.problem.stages
+        last = len(stages) - 1
+        for k in range(1, len(stages)):
+            self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
+                                     f"(1/{stages[k].scale} resolution)")
+            center, loss = self.nelder_mead(k, center, run)
+        for r in range(self.problem.params.schedule.final_restarts):
+            self.counter.begin_stage(f"{label}, stage {last + 1}/{len(stages)}, restart {r + 1}")
+            moved, after = self.nelder_mead(last, center, run)
+            improved = loss - after
+            if after < loss:
+                center, loss = moved, after
+            if improved <= stages[last].fatol:
+                break
+        return center, loss
 
 
 def _initial_simplex(n: int) -> np.ndarray:
@@ -239,51 +193,115 @@ def _initial_simplex(n: int) -> np.ndarray:
     return vertices / vertices.max(axis=0)
 
 
-def _yaw_candidates(reg: Registration, initial: Pose, tracker: _Tracker) -> list[Pose]:
-    sp = reg.params.search
+def _yaw_candidates(search: Search, initial: Pose) -> list[Pose]:
+    sp = search.problem.params.search
     v = initial.vector()
     scored = []
-    tracker.begin_stage("yaw grid search")
+    search.counter.begin_stage("yaw grid search")
     for yaw in np.arange(-180.0, 180.0, sp.yaw_search_step_deg):
         cand = v.copy()
         cand[5] = v[5] + np.radians(yaw)
         pose = Pose.from_vector(cand)
-        value = reg.loss(pose, 0)
-        tracker.record(-1, 0, value, pose)
+        value = search.problem.loss(pose, 0)
+        search.counter.record(-1, 0, value, pose)
         scored.append((value, yaw, pose))
     scored.sort(key=lambda item: item[0])
     return [pose for _, _, pose in scored[: sp.yaw_search_keep]]
+
+
+def _basins(poses: list[Pose], losses: list[float], tol_m: float, tol_deg: float
+            ) -> tuple[list[int], list[int]]:
+    """Basin index per start, and the start that heads each basin: greedily, in order of loss,
+    a start joins the first better head within (``tol_m``, ``tol_deg``), else heads a basin of
+    its own. Basins are numbered in order of their heads' losses."""
+    order = np.argsort(losses, kind="stable")
+    basin = [-1] * len(poses)
+    heads: list[int] = []
+    for i in order:
+        for b, h in enumerate(heads):
+            if translation_error(poses[i], poses[h]) <= tol_m and \
+                    rotation_error_deg(poses[i], poses[h]) <= tol_deg:
+                basin[i] = b
+                break
+        else:
+            basin[i] = len(heads)
+            heads.append(int(i))
+    return basin, heads
+
+
+def solve(problem: Problem, initial: Pose, seed: int | None = None,
+          progress: Callable[[Progress], None] | None = None,
+          should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
+    """The full procedure on a prepared problem (see the module docstring)."""
+    t0 = time.perf_counter()
+    params = problem.params
+    counter = _Counter(progress, should_stop)
+    search = Search(problem, counter)
+    if not params.search.yaw_search and \
+            problem.evaluate(initial, 0).coverage < params.loss.min_coverage:
+        raise ValueError("no map point in view at the initial pose (check the initial pose, "
+                         "its frame and the map)")
+    vp = params.verification
+    starts = _yaw_candidates(search, initial) if params.search.yaw_search else [initial]
+    rng = np.random.default_rng(seed)
+    for _ in range(vp.starts):
+        starts.append(search.pose_at(starts[0].vector(),
+                                     rng.uniform(-1.0, 1.0, len(search.free)) * vp.noise))
+    n = len(starts)
+    coarse = []
+    for i, start in enumerate(starts):
+        label = "initial guess" if i == 0 else f"start {i + 1}/{n}"
+        e0 = counter.evaluations
+        vec, loss = search.coarse(start, i, label)
+        coarse.append((Pose.from_vector(vec), loss, counter.evaluations - e0))
+    basin, heads = _basins([c[0] for c in coarse], [c[1] for c in coarse],
+                           vp.merge_translation_m, vp.merge_rotation_deg)
+    limit = coarse[heads[0]][1] * (1.0 + vp.refine_margin) + vp.loss_margin_abs
+    chosen = [i for i in heads if coarse[i][1] <= limit][: vp.refine_max]
+    refined: dict[int, tuple[Pose, float, int]] = {}
+    for j, i in enumerate(chosen):
+        e0 = counter.evaluations
+        vec, loss = search.refine(coarse[i][0].vector(), coarse[i][1], i,
+                                  f"refining basin {j + 1}/{len(chosen)}")
+        refined[i] = (Pose.from_vector(vec), loss, counter.evaluations - e0)
+    counter.report()
+    win = min(refined, key=lambda i: refined[i][1])
+    best_pose, best_loss = refined[win][0], refined[win][1]
+    final = problem.evaluate(best_pose)
+    if problem.degenerate(final):
+        raise ValueError(
+            f"calibration failed: at the best pose found the map covers "
+            f"{final.coverage * 100:.1f} % of the labelled image (loss {final.loss:.4g}); "
+            "the initial pose is probably far from the truth, or the map is not of this camera's "
+            "view")
+    # renumber the basins so the result's is 0, the others in order of coarse loss
+    order = {b: k for k, b in enumerate(
+        [basin[win]] + [b for b in range(len(heads)) if b != basin[win]])}
+    runs = []
+    for i, start in enumerate(starts):
+        pose, loss, evals = refined[i] if i in refined else coarse[i]
+        extra = coarse[i][2] if i in refined else 0
+        runs.append(RunResult(start, pose, float(loss), int(evals + extra), float(coarse[i][1]),
+                              i in refined, order[basin[i]]))
+    agree = [r for r in runs if r.basin == 0]
+    dt = np.array([translation_error(r.pose, best_pose) for r in agree])
+    dr = np.array([rotation_error_deg(r.pose, best_pose) for r in agree])
+    return CalibrationResult(
+        pose=best_pose, loss=float(best_loss), evaluations=counter.evaluations,
+        seconds=time.perf_counter() - t0, history=counter.history, runs=runs,
+        accepted=len(agree), spread_translation_m=float(np.sqrt(np.mean(dt**2))),
+        spread_rotation_deg=float(np.sqrt(np.mean(dr**2))), coverage=final.coverage,
+    )
 
 
 def calibrate(map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel, initial: Pose,
               params: CalibrationParams | None = None, mapping: LabelMapping | None = None,
               seed: int | None = None, progress: Callable[[Progress], None] | None = None,
               should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
-    """Find the camera pose in the map frame (see the module docstring)."""
+    """Find the camera pose in the map frame (see the module docstring). The map is cropped
+    around the initial position; preparing it is counted in the result's seconds."""
     t0 = time.perf_counter()
-    params = params or CalibrationParams()
-    reg = Registration(map_cloud, target, camera, initial, params, mapping)
-    tracker = _Tracker(progress, should_stop)
-    if not params.search.yaw_search and reg.coverage(initial) < params.loss.min_coverage:
-        raise ValueError("no map point in view at the initial pose (check the initial pose, "
-                         "its frame and the map)")
-    rng = np.random.default_rng(seed)
-    starts = _yaw_candidates(reg, initial, tracker) if params.search.yaw_search else [initial]
-    runs = [reg.run(s, tracker, i, f"run {i + 1}") for i, s in enumerate(starts)]
-    best = min(runs, key=lambda r: r.loss)
-    vp = params.verification
-    for j in range(vp.starts):
-        noise = rng.uniform(-1.0, 1.0, len(reg.free)) * vp.noise
-        start = reg.pose_at(best.start.vector(), noise)
-        index = len(runs)
-        runs.append(reg.run(start, tracker, index, f"verification {j + 1}/{vp.starts}"))
-    best = min(runs, key=lambda r: r.loss)
-    accepted = [r for r in runs if r.loss <= best.loss * (1.0 + vp.loss_margin) + vp.loss_margin_abs]
-    dt = np.array([translation_error(r.pose, best.pose) for r in accepted])
-    dr = np.array([rotation_error_deg(r.pose, best.pose) for r in accepted])
-    return CalibrationResult(
-        pose=best.pose, loss=best.loss, evaluations=tracker.evaluations,
-        seconds=time.perf_counter() - t0, history=tracker.history, runs=runs,
-        accepted=len(accepted), spread_translation_m=float(np.sqrt(np.mean(dt**2))),
-        spread_rotation_deg=float(np.sqrt(np.mean(dr**2))),
-    )
+    problem = Problem(map_cloud, target, camera, initial.translation, params, mapping)
+    result = solve(problem, initial, seed, progress, should_stop)
+    result.seconds = time.perf_counter() - t0
+    return result

@@ -10,20 +10,18 @@ from semcal_ros.cloud import LabelledCloud
 from semcal_ros.labels import INVALID, LabelMapping, colorize
 from semcal_ros.params import RenderParams
 from semcal_ros.pose import Pose
-from semcal_ros.render import make_view, prepare_map
+from semcal_ros.render import prepare_map, view_for
 from semcal_ros.render.fast import render
 
 
 def render_map_labels(map_cloud: LabelledCloud, camera: CameraModel, pose: Pose,
                       mapping: LabelMapping | None = None,
                       params: RenderParams | None = None) -> np.ndarray:
-    """Aligned label image of the map seen from ``pose`` at full resolution."""
+    """Aligned label image of the map seen from ``pose`` at full resolution, rendered exactly as
+    the engine renders it with ``params``."""
     rp = params or RenderParams()
     pmap = prepare_map(map_cloud, mapping, center=pose.translation, radius=rp.crop_radius or None)
-    splat_lambda = rp.splat_lambda_for(pmap.point_spacing(), camera.fx)
-    view = make_view(camera, pose, pmap.origin, splat_lambda, rp.radius_max, rp.near, rp.far,
-                     depth_falloff=rp.depth_falloff, core_fraction=rp.core_fraction)
-    return render(pmap, view)
+    return render(pmap, view_for(camera, pose, pmap, rp))
 
 
 def blend_labels(rgb: np.ndarray, labels: np.ndarray, alpha: float = 0.5) -> np.ndarray:

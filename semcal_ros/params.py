@@ -1,15 +1,24 @@
-"""Calibration parameters: one dataclass tree, filled from ``config/calibrator.yaml``.
+"""Engine parameters: one dataclass tree, the ``engine:`` group of ``config/calibrator.yaml``.
 
-Defaults reproduce the paper's search (+-2.5 m, +-5 deg, roll fixed, Nelder-Mead restarted with
-tolerances 1e-4, 1e-4, 1e-6) on a coarse-to-fine schedule that makes one calibration take about a
-second on a 1M-point map.
+The calibrator node reads this tree under the ``engine.`` prefix (as the map builder reads its
+``mapping.`` group) and ``semcal calibrate --config`` / ``semcal evaluate --config`` read the same
+group from the same file (:meth:`CalibrationParams.from_file`), so one parameter file gives the
+same result through either door. Defaults reproduce the paper's search (+-2.5 m, +-5 deg, roll
+fixed, Nelder-Mead restarted with tolerances 1e-4, 1e-4, 1e-6, verification from perturbed starts)
+on a coarse-to-fine schedule; docs/engine.md says what each value buys, measured.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+from pathlib import Path
 
+from semcal_ros.config import apply_flat, load_node_params
 from semcal_ros.loss import LossParams
+
+#: Beyond these the search is no calibration any more (the loss has no basin that wide).
+MAX_BOUND_XYZ_M = 50.0
+MAX_BOUND_DEG = 180.0
 
 
 @dataclass(frozen=True)
@@ -20,10 +29,21 @@ class RenderParams:
     depth_falloff: float = 0.3  # depth factor at a disc's rim: nearest centre wins within a surface
     depth_falloff_coarse: float = 0.05  # the same for reduced-resolution stages (smoother basin)
     core_fraction: float = 1.0  # share of the disc radius that carries the label (rim: depth only)
+    lod_radius: float = 0.75  # px: chunks whose discs are smaller are thinned (0: draw all points)
     near: float = 0.5  # m
     far: float = 150.0  # m
-    crop_radius: float = 120.0  # m around the initial camera position; 0 keeps the whole map
+    crop_radius: float = 120.0  # m around the crop centre (initial position); 0 keeps the whole map
 
+    def __post_init__(self) -> None:
+        _finite(self)
+        if self.splat_lambda < 0 or self.splat_scale <= 0 or self.radius_max < 1:
+            raise ValueError("render: splat_lambda >= 0, splat_scale > 0, radius_max >= 1")
+        if not 0 < self.near < self.far:
+            raise ValueError(f"render: need 0 < near < far, got {self.near}, {self.far}")
+        if self.lod_radius < 0 or self.crop_radius < 0 or self.depth_falloff < 0 \
+                or self.depth_falloff_coarse < 0 or not 0 < self.core_fraction <= 1:
+            raise ValueError("render: lod_radius, crop_radius, depth falloffs >= 0 and "
+                             "core_fraction in (0, 1]")
 
     def splat_lambda_for(self, point_spacing_m: float, focal_px: float) -> float:
         """The disc size: given, or one that closes the gaps between neighbouring points.
@@ -39,6 +59,22 @@ class RenderParams:
 
 
 @dataclass(frozen=True)
+class LabelParams:
+    """Class alignment changes beyond the built-in SemanticKITTI -> Cityscapes table."""
+
+    merge: tuple[str, ...] = ()  # "from:to" Cityscapes class names merged in both domains
+    # (the paper on KITTI: ["sidewalk:road"])
+
+    def __post_init__(self) -> None:
+        for item in self.merge:
+            if item.count(":") != 1 or not all(item.split(":")):
+                raise ValueError(f"labels.merge entries are 'from:to' class names, got '{item}'")
+
+    def as_dict(self) -> dict[str, str]:
+        return dict(item.split(":") for item in self.merge)
+
+
+@dataclass(frozen=True)
 class SearchParams:
     bound_xyz: tuple[float, float, float] = (2.5, 2.5, 2.5)  # m
     bound_roll_deg: float = 2.0  # only searched with free_roll
@@ -50,42 +86,133 @@ class SearchParams:
     yaw_search_keep: int = 3
 
     def __post_init__(self) -> None:
-        values = (*self.bound_xyz, self.bound_pitch_deg, self.bound_yaw_deg)
-        if len(self.bound_xyz) != 3 or min(values) <= 0 or (self.free_roll and self.bound_roll_deg <= 0):
-            raise ValueError("search bounds must be positive (bound_xyz has 3 values)")
+        _finite(self)
+        if len(self.bound_xyz) != 3:
+            raise ValueError(f"search.bound_xyz needs 3 values, got {len(self.bound_xyz)}")
+        angles = (self.bound_pitch_deg, self.bound_yaw_deg) + \
+            ((self.bound_roll_deg,) if self.free_roll else ())
+        if min(*self.bound_xyz, *angles) <= 0:
+            raise ValueError("search bounds must be positive")
+        if max(self.bound_xyz) > MAX_BOUND_XYZ_M:
+            raise ValueError(f"search.bound_xyz {max(self.bound_xyz):g} m is beyond what the "
+                             f"method can search (at most {MAX_BOUND_XYZ_M:g} m): give a better "
+                             "initial position")
+        if max(angles) > MAX_BOUND_DEG:
+            raise ValueError(f"search angle bound {max(angles):g} deg is beyond "
+                             f"{MAX_BOUND_DEG:g} deg (use search.yaw_search for an unknown yaw)")
+        if self.yaw_search and (not 0 < self.yaw_search_step_deg <= 90 or self.yaw_search_keep < 1):
+            raise ValueError("search: yaw_search_step_deg in (0, 90] and yaw_search_keep >= 1")
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One Nelder-Mead stage of the schedule."""
+
+    scale: int  # image downscale factor (1 = full resolution)
+    simplex: float  # initial simplex, as a fraction of the search bounds
+    fatol: float  # loss change that ends the stage (the loss is a mean over valid pixels)
+    max_evaluations: int  # cap of the stage
 
 
 @dataclass(frozen=True)
 class ScheduleParams:
-    """Nelder-Mead stages, coarse to fine; all tuples have one entry per stage."""
+    """Nelder-Mead stages, coarse to fine, one entry per stage in each list.
 
-    scales: tuple[int, ...] = (4, 2, 1)  # image downscale factor
-    point_fractions: tuple[float, ...] = (0.125, 0.5, 1.0)  # share of map points rendered
-    simplex: tuple[float, ...] = (1.0, 0.1, 0.03)  # initial simplex, as a fraction of the bounds
-    fatol: tuple[float, ...] = (1e-4, 1e-4, 1e-6)  # the paper's tolerances, on the mean loss
-    max_evaluations: tuple[int, ...] = (500, 200, 150)
+    Kept as parallel lists because ROS parameters are flat typed arrays; the engine only ever
+    sees :meth:`stages`.
+    """
+
+    scales: tuple[int, ...] = (4, 2, 1)
+    simplex: tuple[float, ...] = (1.0, 0.1, 0.03)
+    fatol: tuple[float, ...] = (1e-4, 1e-4, 1e-6)  # the paper's tolerances
+    max_evaluations: tuple[int, ...] = (300, 150, 80)
     xatol: float = 1e-3  # in units of the bounds
-    final_restarts: int = 2  # the last stage again from its result while that lowers the loss
+    final_restarts: int = 1  # last stage again from its result while that lowers the loss
 
     def __post_init__(self) -> None:
+        _finite(self)
         n = len(self.scales)
-        if n == 0 or any(len(t) != n for t in (self.point_fractions, self.simplex, self.fatol,
-                                                self.max_evaluations)):
-            raise ValueError("schedule tuples must all have one entry per stage")
+        if n == 0 or any(len(t) != n for t in (self.simplex, self.fatol, self.max_evaluations)):
+            raise ValueError("schedule: scales, simplex, fatol and max_evaluations need one "
+                             "entry per stage each")
+        if min(self.scales) < 1 or min(self.simplex) <= 0 or min(self.fatol) < 0 \
+                or min(self.max_evaluations) < 1 or self.xatol <= 0 or self.final_restarts < 0:
+            raise ValueError("schedule: scales >= 1, simplex > 0, fatol >= 0, max_evaluations "
+                             ">= 1, xatol > 0, final_restarts >= 0")
+        if self.scales[-1] != 1:
+            raise ValueError("schedule: the last stage must be at full resolution (scale 1)")
+
+    def stages(self) -> tuple[Stage, ...]:
+        return tuple(Stage(int(s), float(x), float(f), int(m)) for s, x, f, m in
+                     zip(self.scales, self.simplex, self.fatol, self.max_evaluations))
 
 
 @dataclass(frozen=True)
 class VerificationParams:
-    starts: int = 10  # extra runs from noisy initial guesses
+    """The paper's verification: more starts around the initial guess; the lowest loss wins.
+
+    Every start runs the first (coarse) stage only; starts that end in the same place are merged,
+    and only the best and the distinct basins within ``refine_margin`` of its coarse loss are
+    refined at full resolution (at most ``refine_max``): full-resolution renders are spent only
+    where they can change the answer.
+    """
+
+    starts: int = 6  # extra starts besides the initial guess
     noise: float = 0.5  # uniform noise of the starts, as a fraction of the search bounds
-    loss_margin: float = 0.05  # a run is accepted when its loss <= best * (1 + margin) + abs
-    loss_margin_abs: float = 1e-4  # (a purely relative margin rejects everything near loss 0)
+    refine_margin: float = 0.15  # coarse loss <= best * (1 + margin): worth refining
+    refine_max: int = 3  # at most this many basins refined at full resolution
+    merge_translation_m: float = 0.3  # coarse results closer than this and
+    merge_rotation_deg: float = 0.3  # this are one basin
+    loss_margin: float = 0.05  # refined runs with loss <= best * (1 + margin) + abs agree
+    loss_margin_abs: float = 1e-4
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        if self.starts < 0 or self.noise < 0 or self.refine_margin < 0 or self.refine_max < 1 \
+                or self.merge_translation_m < 0 or self.merge_rotation_deg < 0 \
+                or self.loss_margin < 0 or self.loss_margin_abs < 0:
+            raise ValueError("verification: starts, noise, margins >= 0 and refine_max >= 1")
 
 
 @dataclass(frozen=True)
 class CalibrationParams:
     render: RenderParams = field(default_factory=RenderParams)
     loss: LossParams = field(default_factory=LossParams)
+    labels: LabelParams = field(default_factory=LabelParams)
     search: SearchParams = field(default_factory=SearchParams)
     schedule: ScheduleParams = field(default_factory=ScheduleParams)
     verification: VerificationParams = field(default_factory=VerificationParams)
+
+    @classmethod
+    def from_file(cls, path: str | Path | None, node: str = "calibrator",
+                  base: "CalibrationParams | None" = None) -> "CalibrationParams":
+        """The ``engine:`` group of a ROS 2 parameter file (the calibrator node's own
+        parameters beside it are not the engine's and are skipped); an unknown name inside the
+        group is an error naming it, so a typo never passes silently."""
+        params = base or cls()
+        if path is None:
+            return params
+        prefix = "engine."
+        every = load_node_params(path, node)
+        groups = {f.name for f in fields(cls)}
+        stray = sorted({k.split(".", 1)[0] for k in every if k.split(".", 1)[0] in groups})
+        if stray:
+            raise ValueError(f"{path}: engine parameter group(s) {', '.join(stray)} must stand "
+                             "under 'engine:' (see config/calibrator.yaml)")
+        flat = {k[len(prefix):]: v for k, v in every.items() if k.startswith(prefix)}
+        try:
+            return apply_flat(params, flat, strict=True)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+
+def _finite(params: object) -> None:
+    """Every number of a parameter group is finite (NaN passes every < and > check)."""
+    import math
+
+    for name, value in vars(params).items():
+        values = value if isinstance(value, tuple) else (value,)
+        for v in values:
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"{type(params).__name__.replace('Params', '').lower()}."
+                                 f"{name} must be a finite number, got {v}")

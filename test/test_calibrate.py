@@ -70,7 +70,7 @@ def case(tmp_path_factory, world, target):
     files.write_camera_info(d / "camera_info.yaml", camera())
     files.write_pose(d / "initial.yaml", NEAR)  # the CLI's plumbing, not the basin, is tested here
     (d / "fast.yaml").write_text(yaml.safe_dump(
-        {"calibrator": {"ros__parameters": {"verification": {"starts": 1}}}}))
+        {"calibrator": {"ros__parameters": {"engine": {"verification": {"starts": 1}}}}}))
     return d
 
 
@@ -142,32 +142,6 @@ def test_cli_non_unit_quaternion(case, capsys):
 
 
 def test_cli_unknown_parameter(case, capsys):
-    (case / "typo.yaml").write_text("calibrator:\n  ros__parameters:\n    loss: {kindd: l2}\n")
+    (case / "typo.yaml").write_text(
+        "calibrator:\n  ros__parameters:\n    engine:\n      loss: {kindd: l2}\n")
     assert "kindd" in _error_of(args(case, **{"--config": case / "typo.yaml"}), capsys)
-
-
-def test_yaw_grid_finds_an_unknown_yaw(world, target):
-    from semcal_ros.optimize import Registration, _Tracker, _yaw_candidates
-    from semcal_ros.params import SearchParams
-
-    lost = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.5, -0.5, 0.3],
-                                  GROUND_TRUTH.body_rpy_deg() + [0.0, 2.0, 97.0])
-    params = CalibrationParams(search=SearchParams(yaw_search=True, yaw_search_keep=3))
-    reg = Registration(world, target, camera(), lost, params)
-    candidates = _yaw_candidates(reg, lost, _Tracker(None, None))
-    yaw_errors = [abs((c.body_rpy_deg()[2] - GROUND_TRUTH.body_rpy_deg()[2] + 180) % 360 - 180)
-                  for c in candidates]
-    assert min(yaw_errors) <= 5.0  # a grid cell within the +-5 deg search bound of the truth
-
-
-def test_free_roll_adds_a_parameter(world, target):
-    from semcal_ros.optimize import Registration
-    from semcal_ros.params import SearchParams
-
-    fixed = Registration(world, target, camera(), INITIAL, CalibrationParams())
-    free = Registration(world, target, camera(), INITIAL,
-                        CalibrationParams(search=SearchParams(free_roll=True)))
-    assert list(fixed.free) == [0, 1, 2, 4, 5]
-    assert list(free.free) == [0, 1, 2, 3, 4, 5]
-    moved = free.pose_at(INITIAL.vector(), np.array([0, 0, 0, 1.0, 0, 0]))
-    assert moved.body_rpy_deg()[0] == pytest.approx(INITIAL.body_rpy_deg()[0] + 2.0)

@@ -13,13 +13,14 @@ from semcal_ros.evaluation import (
     ProtocolParams, evaluate_scene, format_table, initial_guesses, summarize,
 )
 from semcal_ros.io.files import pose_from_dict, read_pose
-from semcal_ros.params import CalibrationParams, ScheduleParams
+from semcal_ros.params import CalibrationParams, ScheduleParams, VerificationParams
 from semcal_ros.pose import Pose, rotation_error_deg, translation_error
 
-#: One coarse Nelder-Mead stage: enough to move a start, cheap enough for a unit test.
+#: A short coarse stage and a few full-resolution steps, one start: enough to move a start,
+#: cheap enough for a unit test.
 CHEAP = replace(CalibrationParams(), schedule=ScheduleParams(
-    scales=(4,), point_fractions=(0.125,), simplex=(1.0,), fatol=(1e-4,), max_evaluations=(25,),
-    final_restarts=0))
+    scales=(4, 1), simplex=(1.0, 0.03), fatol=(1e-4, 1e-6), max_evaluations=(60, 5),
+    final_restarts=0), verification=VerificationParams(starts=0))
 
 
 def test_summary_statistics_match_a_hand_computation():
@@ -70,7 +71,7 @@ def test_a_tiny_real_evaluation_reports_its_own_runs(demo_scene: Path):
         np.testing.assert_allclose(run.start.translation, start.translation)
         assert run.translation_m == pytest.approx(translation_error(run.pose, truth))
         assert run.rotation_deg == pytest.approx(rotation_error_deg(run.pose, truth))
-        assert 0 < run.evaluations <= 26 and run.loss >= 0
+        assert 0 < run.evaluations <= 60 + 5 + 2 and run.loss >= 0
     # the optimiser moved every start closer to the truth
     assert np.mean([r.translation_m for r in res.runs]) < np.mean(
         [translation_error(r.start, truth) for r in res.runs])
@@ -86,9 +87,10 @@ def test_cli_writes_json_table_and_overlay(demo_scene: Path, tmp_path: Path, cap
     from semcal_ros.cli import main
 
     config = tmp_path / "cheap.yaml"
-    config.write_text("calibrator:\n  ros__parameters:\n    schedule:\n      scales: [4]\n"
-                      "      point_fractions: [0.125]\n      simplex: [1.0]\n"
-                      "      fatol: [0.0001]\n      max_evaluations: [15]\n")
+    config.write_text("calibrator:\n  ros__parameters:\n    engine:\n      schedule:\n"
+                      "        scales: [4, 1]\n        simplex: [1.0, 0.03]\n"
+                      "        fatol: [0.0001, 0.000001]\n        max_evaluations: [12, 3]\n"
+                      "        final_restarts: 0\n      verification: {starts: 0}\n")
     out = tmp_path / "ev.json"
     code = main(["evaluate", str(demo_scene), "--runs", "2", "--keep", "1", "--quiet",
                  "--config", str(config), "--json", str(out), "--overlay",

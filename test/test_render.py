@@ -16,16 +16,17 @@ def world():
     return street_world(step=0.15)
 
 
-@pytest.mark.parametrize("falloff,core", [(0.0, 1.0), (0.3, 0.6)])
+@pytest.mark.parametrize("falloff,core,lod", [(0.0, 1.0, 0.0), (0.3, 0.6, 0.0), (0.3, 1.0, 1.5)])
 @pytest.mark.parametrize("pose", [
     GROUND_TRUTH,
     Pose.from_body_rpy_deg([3.0, -2.0, 1.5], [2.0, 5.0, 170.0]),  # low, looking the other way
     Pose.from_body_rpy_deg([0.0, 0.0, 30.0], [0.0, 89.0, 0.0]),  # straight down from high up
 ])
-def test_fast_and_reference_are_identical(world, pose, falloff, core):
+def test_fast_and_reference_are_identical(world, pose, falloff, core, lod):
     cam = CameraModel(960, 600, camera().k, np.array([-0.2, 0.05, 0.002, -0.001, 0.01]))
     pmap = prepare_map(world, center=pose.translation)
-    view = make_view(cam, pose, pmap.origin, 32.0, 8.0, depth_falloff=falloff, core_fraction=core)
+    view = make_view(cam, pose, pmap.origin, 32.0, 8.0, depth_falloff=falloff, core_fraction=core,
+                     lod_radius=lod)
     a = reference.render(pmap, view)
     b = fast.render(pmap, view)
     assert (a != INVALID).mean() > 0.05  # something was drawn
@@ -70,12 +71,28 @@ def test_dynamic_points_are_removed_and_crop_applies():
         prepare_map(LabelledCloud(xyz[:1], label[:1]))
 
 
-def test_subset_keeps_spatial_spread(world):
+def test_spacing_estimate_matches_a_full_search(world):
+    from scipy.spatial import cKDTree
+
     pmap = prepare_map(world)
-    sub = pmap.subset(0.125)
-    assert len(sub) == pytest.approx(len(pmap) / 8, rel=0.01)
-    np.testing.assert_allclose(sub.xyz.min(0), pmap.xyz.min(0), atol=1.0)
-    np.testing.assert_allclose(sub.xyz.max(0), pmap.xyz.max(0), atol=1.0)
+    dist, _ = cKDTree(pmap.xyz).query(pmap.xyz, k=2)
+    assert pmap.spacing == pytest.approx(float(np.median(dist[:, 1])), rel=0.05)
+
+
+def test_level_of_detail_thins_far_points_and_keeps_the_picture():
+    dense = street_world(step=0.04)
+    pmap = prepare_map(dense, center=GROUND_TRUTH.translation)
+    lam = 1.5 * camera().fx * pmap.spacing  # the engine's splat size for this density
+    full = make_view(camera(), GROUND_TRUTH, pmap.origin, lam, 8.0, depth_falloff=0.3)
+    lod = make_view(camera(), GROUND_TRUTH, pmap.origin, lam, 8.0, depth_falloff=0.3,
+                    lod_radius=2.0)
+    drawn_full = len(reference.project_points(pmap, full)[0])
+    drawn_lod = len(reference.project_points(pmap, lod)[0])
+    assert drawn_lod < 0.8 * drawn_full  # far chunks are thinned ...
+    a, b = fast.render(pmap, full), fast.render(pmap, lod)
+    assert abs((a != INVALID).mean() - (b != INVALID).mean()) < 0.03  # ... without opening holes
+    assert (a != b).mean() < 0.05
+    np.testing.assert_array_equal(b, reference.render(pmap, lod))
 
 
 def test_disc_rim_occludes_without_label():

@@ -31,6 +31,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--paper", action="store_true", help="append the paper's Table I rows")
     p.add_argument("--from-json", action="store_true",
                    help="run nothing: print the table of earlier --json outputs given as DIR")
+    p.add_argument("--single", action="store_true",
+                   help="one schedule per start (no verification starts): the paper's single "
+                        "run; default: the engine's full default procedure per start")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -42,14 +45,14 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from semcal_ros.engine_config import load_calibration_params
     from semcal_ros.evaluation import ProtocolParams, evaluate_scene, format_table
     from semcal_ros.labels import LabelMapping
+    from semcal_ros.params import CalibrationParams
 
     if args.from_json:
         return _table_from_json([Path(p) for p in args.scenes], args.paper)
     protocol = ProtocolParams(runs=args.runs, keep=args.keep, seed=args.seed)
-    params = load_calibration_params(args.config)
+    params = CalibrationParams.from_file(args.config)
     mapping = LabelMapping.from_yaml(args.label_mapping) if args.label_mapping else LabelMapping()
     folders = [Path(s) for s in args.scenes]
     for folder in folders:
@@ -75,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
                                         f"{r.rotation_deg:.3f} deg, {r.seconds:.1f} s")
                     bar.update(1)
 
-                res = evaluate_scene(folder, loss, protocol, params, mapping, map_file, on_run)
+                res = evaluate_scene(folder, loss, protocol, params, mapping, map_file, on_run,
+                                     single=args.single)
                 results.append(res)
                 if args.overlay:
                     _write_overlay(args.overlay, folder, res, params, mapping, map_file)
@@ -84,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(results, paper=args.paper))
     if args.json:
         data = {"protocol": asdict(protocol), "config": args.config, "map": args.map,
+                "single": args.single,
                 "results": [r.to_dict() for r in results]}
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(data, indent=1))

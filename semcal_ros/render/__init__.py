@@ -5,9 +5,10 @@ readable definition) and ``fast`` (numba, two threads, chunk culling; what the o
 """
 
 from semcal_ros.render.prepare import PreparedMap, prepare_map
-from semcal_ros.render.view import View, make_view
+from semcal_ros.render.view import View, ViewSetup, make_view, view_for, view_setup
 
-__all__ = ["PreparedMap", "View", "make_view", "prepare_map", "render_labels"]
+__all__ = ["PreparedMap", "View", "ViewSetup", "make_view", "prepare_map", "render_labels",
+           "view_for", "view_setup"]
 
 
 def render_labels(pmap: PreparedMap, view: View, fast: bool = True):

@@ -18,6 +18,7 @@ import numpy as np
 
 from semcal_ros.camera import distort
 from semcal_ros.labels import INVALID
+from semcal_ros.render.lod import chunk_stride
 from semcal_ros.render.prepare import CHUNK, PreparedMap
 from semcal_ros.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
 
@@ -51,9 +52,9 @@ def _chunk_visible(c, rad, r, t, near, far, bounds):
 
 
 @numba.njit(cache=True, parallel=True, nogil=True)
-def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, bounds,
-                 splat_lambda, radius_max, near, far, offsets, start, falloff, core, width,
-                 height, n_threads):
+def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted, bounds,
+                 splat_lambda, lod_radius, radius_max, near, far, offsets, start, falloff, core,
+                 width, height, n_threads):
     n = xyz.shape[0]
     n_chunks = chunk_center.shape[0]
     zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
@@ -67,8 +68,11 @@ def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, bou
         for ci in range(th, n_chunks, n_threads):
             if not _chunk_visible(chunk_center[ci], chunk_radius[ci], r, t, near, far, bounds):
                 continue
+            stride = chunk_stride(chunk_center[ci], chunk_radius[ci], r, t, near, splat_lambda,
+                                  lod_radius)
+            lam = splat_lambda * math.sqrt(np.float64(stride))
             end = min(n, (ci + 1) * CHUNK)
-            for i in range(ci * CHUNK, end):
+            for i in range(ci * CHUNK, end, stride):
                 x = np.float64(xyz[i, 0])
                 y = np.float64(xyz[i, 1])
                 z = np.float64(xyz[i, 2])
@@ -82,10 +86,13 @@ def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, bou
                 yn = yc / zc
                 if not (xn >= xmin and xn <= xmax and yn >= ymin and yn <= ymax):
                     continue
-                xd, yd = _distort(xn, yn, k1, k2, p1, p2, k3)
+                if distorted:
+                    xd, yd = _distort(xn, yn, k1, k2, p1, p2, k3)
+                else:
+                    xd, yd = xn, yn
                 u = int(math.floor(fx * xd + cx + 0.5))
                 v = int(math.floor(fy * yd + cy + 0.5))
-                step = min(int(math.floor(splat_lambda / dist * RADIUS_STEPS)), steps_max)
+                step = min(int(math.floor(lam / dist * RADIUS_STEPS)), steps_max)
                 lab = label[i]
                 for o in range(start[step], start[step + 1]):
                     uu = u + offsets[o, 0]
@@ -110,8 +117,8 @@ def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> 
     threads = n_threads or numba.get_num_threads()
     zbuf = _render_keys(
         pmap.xyz, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
-        view.translation, view.intrinsics, view.distortion, view.bounds, view.splat_lambda,
-        view.radius_max, view.near, view.far, view.disc_offsets, view.disc_start,
+        view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
+        view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far, view.disc_offsets, view.disc_start,
         view.disc_falloff, view.disc_core, view.width,
         view.height, threads)
     return zbuf.reshape(view.height, view.width)

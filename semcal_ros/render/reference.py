@@ -11,33 +11,42 @@ import numpy as np
 
 from semcal_ros.camera import distort
 from semcal_ros.labels import INVALID
-from semcal_ros.render.prepare import PreparedMap
+from semcal_ros.render.lod import chunk_strides
+from semcal_ros.render.prepare import CHUNK, PreparedMap
 from semcal_ros.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
 
 
 def project_points(pmap: PreparedMap, view: View) -> tuple[np.ndarray, ...]:
-    """Pixel column, row, radius step, distance and label of every point in view."""
-    x = pmap.xyz[:, 0].astype(np.float64)
-    y = pmap.xyz[:, 1].astype(np.float64)
-    z = pmap.xyz[:, 2].astype(np.float64)
+    """Pixel column, row, radius step, distance and label of every drawn point in view."""
     r, t = view.rotation, view.translation
+    # level of detail: every k-th point of a chunk, its disc widened by sqrt(k) (see render/lod.py)
+    stride = chunk_strides(pmap.chunk_center, pmap.chunk_radius, r, t, view.near,
+                           view.splat_lambda, view.lod_radius)
+    index = np.arange(len(pmap))
+    point_stride = stride[index // CHUNK]
+    drawn = (index % CHUNK) % point_stride == 0
+    lam = view.splat_lambda * np.sqrt(point_stride[drawn].astype(np.float64))
+    x = pmap.xyz[drawn, 0].astype(np.float64)
+    y = pmap.xyz[drawn, 1].astype(np.float64)
+    z = pmap.xyz[drawn, 2].astype(np.float64)
+    label = pmap.label[drawn]
     xc = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
     yc = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
     zc = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
     dist = np.sqrt(xc * xc + yc * yc + zc * zc)
     keep = (zc > view.near) & (dist < view.far)
-    xc, yc, zc, dist, lab = xc[keep], yc[keep], zc[keep], dist[keep], pmap.label[keep]
+    xc, yc, zc, dist, lab, lam = xc[keep], yc[keep], zc[keep], dist[keep], label[keep], lam[keep]
     xn, yn = xc / zc, yc / zc
     xmin, xmax, ymin, ymax = view.bounds
     keep = (xn >= xmin) & (xn <= xmax) & (yn >= ymin) & (yn <= ymax)
-    xn, yn, dist, lab = xn[keep], yn[keep], dist[keep], lab[keep]
+    xn, yn, dist, lab, lam = xn[keep], yn[keep], dist[keep], lab[keep], lam[keep]
     k1, k2, p1, p2, k3 = view.distortion
-    xd, yd = distort(xn, yn, k1, k2, p1, p2, k3)
+    xd, yd = distort(xn, yn, k1, k2, p1, p2, k3) if view.distorted else (xn, yn)
     fx, fy, cx, cy = view.intrinsics
     u = np.floor(fx * xd + cx + 0.5).astype(np.int64)
     v = np.floor(fy * yd + cy + 0.5).astype(np.int64)
     steps_max = int(np.floor(view.radius_max * RADIUS_STEPS))
-    step = np.minimum(np.floor(view.splat_lambda / dist * RADIUS_STEPS), steps_max).astype(np.int64)
+    step = np.minimum(np.floor(lam / dist * RADIUS_STEPS), steps_max).astype(np.int64)
     return u, v, step, dist, lab.astype(np.int64)
 
 

@@ -7,7 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from semcal_ros.camera import CameraModel
+from semcal_ros.params import RenderParams
 from semcal_ros.pose import Pose
+from semcal_ros.render.prepare import PreparedMap
 
 #: Splat radii are quantised to 1/RADIUS_STEPS pixel; one precomputed disc per step.
 RADIUS_STEPS = 4
@@ -33,6 +35,8 @@ class View:
     disc_start: np.ndarray  # (S + 2,) int32: disc s = offsets[start[s]:start[s+1]]
     disc_falloff: np.ndarray  # (K,) float64: 1 + depth_falloff * (offset / radius)^2
     disc_core: np.ndarray  # (K,) uint8: 1 where the offset carries the label, 0 depth only
+    lod_radius: float = 0.0  # px: chunks whose discs are smaller are thinned (0: all points)
+    distorted: bool = True  # False when all distortion coefficients are zero (skips the polynomial)
 
 
 def disc_table(radius_max: float, depth_falloff: float,
@@ -74,7 +78,7 @@ _DISC_CACHE: dict[tuple[float, float, float], tuple[np.ndarray, ...]] = {}
 def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda: float,
               radius_max: float, near: float = 0.3, far: float = 200.0,
               bounds: np.ndarray | None = None, depth_falloff: float = 0.0,
-              core_fraction: float = 1.0) -> View:
+              core_fraction: float = 1.0, lod_radius: float = 0.0) -> View:
     """A view of the map (whose local origin is ``origin``) from ``pose``."""
     r, t = pose.world_to_camera()
     t_local = t + r @ np.asarray(origin, float)
@@ -92,5 +96,54 @@ def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda:
         bounds=np.asarray(bounds, dtype=np.float64),
         splat_lambda=float(splat_lambda), radius_max=float(radius_max),
         near=float(near), far=float(far), disc_offsets=offsets, disc_start=start,
-        disc_falloff=falloff, disc_core=core,
+        disc_falloff=falloff, disc_core=core, lod_radius=float(lod_radius),
+        distorted=bool(np.any(camera.d != 0.0)),
     )
+
+
+@dataclass(frozen=True)
+class ViewSetup:
+    """Everything a view of one prepared map needs except the pose, at one resolution.
+
+    Made once per calibration stage (the distortion bounds alone take a few ms of OpenCV); then
+    :meth:`view` is cheap enough to call per loss evaluation.
+    """
+
+    camera: CameraModel  # already scaled to the stage's resolution
+    origin: np.ndarray
+    splat_lambda: float
+    radius_max: float
+    depth_falloff: float
+    bounds: np.ndarray
+    params: RenderParams
+
+    def view(self, pose: Pose) -> View:
+        rp = self.params
+        return make_view(self.camera, pose, self.origin, self.splat_lambda, self.radius_max,
+                         rp.near, rp.far, self.bounds, self.depth_falloff, rp.core_fraction,
+                         rp.lod_radius)
+
+
+def view_setup(camera: CameraModel, pmap: PreparedMap, params: RenderParams | None = None,
+               scale: int = 1) -> ViewSetup:
+    """The one way to set up a render: the optimiser, the overlay, the bench and the scenes all
+    come through here, so a parameter changed in ``params`` changes every picture alike.
+
+    The splat size follows the map's point spacing and the (scaled) focal length; reduced
+    resolutions use the coarse depth falloff and a proportionally smaller largest disc.
+    """
+    rp = params or RenderParams()
+    cam = camera.scaled(scale)
+    radius_max = max(1.0, rp.radius_max / scale)
+    return ViewSetup(
+        camera=cam, origin=pmap.origin,
+        splat_lambda=rp.splat_lambda_for(pmap.spacing, camera.fx) / scale,
+        radius_max=radius_max,
+        depth_falloff=rp.depth_falloff if scale == 1 else rp.depth_falloff_coarse,
+        bounds=np.asarray(cam.normalized_bounds(margin_px=radius_max)), params=rp)
+
+
+def view_for(camera: CameraModel, pose: Pose, pmap: PreparedMap,
+             params: RenderParams | None = None, scale: int = 1) -> View:
+    """A single view (see :func:`view_setup`)."""
+    return view_setup(camera, pmap, params, scale).view(pose)

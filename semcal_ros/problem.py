@@ -1,0 +1,124 @@
+"""The registration problem: a labelled map, a camera and its label image, ready for many losses.
+
+A :class:`Problem` is what the search minimises and what everything that judges a pose asks: the
+optimiser, the evaluation protocol (one problem for all its starts), quality reports and drift
+checks. It prepares the map once (crop around an explicit centre, local origin, Morton chunks) and
+one view set-up and target per resolution level of the schedule; ``loss(pose, stage)`` is then one
+render and one table lookup per pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from semcal_ros.camera import CameraModel
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.labels import INVALID, LabelMapping
+from semcal_ros.loss import LabelLoss
+from semcal_ros.params import CalibrationParams
+from semcal_ros.pose import Pose
+from semcal_ros.render import PreparedMap, ViewSetup, prepare_map, view_setup
+from semcal_ros.render.fast import render
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    loss: float
+    coverage: float  # share of the target's non-sky pixels that rendered map points cover
+
+
+@dataclass(frozen=True)
+class Level:
+    """One resolution: the view set-up and the loss against the downsampled target."""
+
+    scale: int
+    setup: ViewSetup
+    loss: LabelLoss
+
+
+def mapping_for(params: CalibrationParams, mapping: LabelMapping | None = None) -> LabelMapping:
+    """The label alignment: an explicit one (a YAML given by the user), else the built-in table
+    with ``params.labels.merge`` applied (what a parameter file can carry)."""
+    if mapping is not None:
+        if params.labels.merge:
+            return LabelMapping(mapping.alignment, mapping.dynamic,
+                                {**dict(mapping.merge), **params.labels.as_dict()})
+        return mapping
+    return LabelMapping(merge=params.labels.as_dict())
+
+
+class Problem:
+    """A map, a target label image and a camera made ready for many loss evaluations.
+
+    ``center`` is where the map is cropped (``params.render.crop_radius`` around it) and where
+    its local origin lies: the initial camera position for one calibration, any fixed point near
+    the camera when many starts share one problem.
+    """
+
+    def __init__(self, map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel,
+                 center: np.ndarray, params: CalibrationParams | None = None,
+                 mapping: LabelMapping | None = None) -> None:
+        self.params = params or CalibrationParams()
+        self.mapping = mapping_for(self.params, mapping)
+        self.camera = camera
+        target = np.asarray(target)
+        if target.ndim != 2 or target.dtype != np.uint8:
+            raise ValueError(f"label image must be a single-channel uint8 image, got {target.dtype} "
+                             f"with shape {target.shape}")
+        if target.shape != (camera.height, camera.width):
+            raise ValueError(f"label image is {target.shape[1]}x{target.shape[0]} but camera_info "
+                             f"says {camera.width}x{camera.height}")
+        if len(map_cloud) and not np.all(np.isfinite(map_cloud.xyz)):
+            bad = int((~np.all(np.isfinite(map_cloud.xyz), axis=1)).sum())
+            raise ValueError(f"map contains {bad} NaN or infinite points")
+        center = np.asarray(center, dtype=float)
+        if center.shape != (3,) or not np.all(np.isfinite(center)):
+            raise ValueError(f"crop centre must be 3 finite numbers, got {center}")
+        rp = self.params.render
+        if rp.crop_radius and len(map_cloud):
+            nearest = float(np.sqrt(np.min(np.sum((map_cloud.xyz - center) ** 2, axis=1))))
+            if nearest > rp.crop_radius:
+                raise ValueError(
+                    f"the initial position is {nearest:.0f} m from the nearest map point (the "
+                    f"map is used within {rp.crop_radius:g} m of it): check the initial pose "
+                    "and its frame")
+        self.pmap: PreparedMap = prepare_map(map_cloud, self.mapping, center=center,
+                                             radius=rp.crop_radius or None)
+        self.target = self.mapping.map_image(target)
+        if np.all(self.target == INVALID):
+            raise ValueError("label image has no pixel of a class the map can match")
+        self.stages = self.params.schedule.stages()
+        self._levels: dict[int, Level] = {}
+        for stage in self.stages:
+            if stage.scale not in self._levels:
+                self._levels[stage.scale] = self._level(stage.scale)
+
+    def _level(self, scale: int) -> Level:
+        setup = view_setup(self.camera, self.pmap, self.params.render, scale)
+        cam = setup.camera
+        off = scale // 2  # the sample nearest the centre of each scale x scale block
+        target = self.target[off::scale, off::scale][:cam.height, :cam.width]
+        return Level(scale, setup, LabelLoss(np.ascontiguousarray(target), self.params.loss))
+
+    def level(self, stage: int = -1) -> Level:
+        return self._levels[self.stages[stage].scale]
+
+    def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
+        """Aligned label image of the map from ``pose`` at the stage's resolution."""
+        lv = self.level(stage)
+        return render(self.pmap, lv.setup.view(pose))
+
+    def evaluate(self, pose: Pose, stage: int = -1) -> Evaluation:
+        loss, coverage = self.level(stage).loss.evaluate(self.render(pose, stage))
+        return Evaluation(float(loss), float(coverage))
+
+    def loss(self, pose: Pose, stage: int = -1) -> float:
+        """The paper's masked, normalised loss at ``pose`` (``stage`` -1: full resolution)."""
+        return self.level(stage).loss(self.render(pose, stage))
+
+    def degenerate(self, evaluation: Evaluation) -> bool:
+        """True for a view that shows (almost) none of the map: never a result."""
+        lp = self.params.loss
+        return evaluation.loss >= lp.degenerate_loss or evaluation.coverage < lp.min_coverage

@@ -1,0 +1,180 @@
+"""The engine's pieces: parameters, the problem (one prepared map, a public loss), the search."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semcal_ros.params import (
+    CalibrationParams, LabelParams, ScheduleParams, SearchParams, Stage, VerificationParams,
+)
+from semcal_ros.pose import Pose, rotation_error_deg, translation_error
+from semcal_ros.problem import Problem
+from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world, target_image
+
+INITIAL = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [1.8, -1.5, 1.2],
+                                 GROUND_TRUTH.body_rpy_deg() + [0.0, -3.5, 4.0])
+
+
+@pytest.fixture(scope="module")
+def world():
+    return street_world(step=0.12)
+
+
+@pytest.fixture(scope="module")
+def target(world):
+    return target_image(camera(), world=world)
+
+
+@pytest.fixture(scope="module")
+def problem(world, target):
+    return Problem(world, target, camera(), GROUND_TRUTH.translation)
+
+
+# --- parameters --------------------------------------------------------------------------------
+def test_schedule_is_a_tuple_of_stage_records():
+    stages = ScheduleParams().stages()
+    assert [s.scale for s in stages] == [4, 2, 1]
+    assert stages[-1] == Stage(1, 0.03, 1e-6, ScheduleParams().max_evaluations[-1])
+    with pytest.raises(ValueError, match="one entry per stage"):
+        ScheduleParams(scales=(4, 1), simplex=(1.0,))
+    with pytest.raises(ValueError, match="last stage must be at full resolution"):
+        ScheduleParams(scales=(4, 2), simplex=(1, 1), fatol=(1, 1), max_evaluations=(1, 1))
+    with pytest.raises(ValueError, match="max_evaluations"):
+        ScheduleParams(max_evaluations=(300, -1, 80))
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"bound_xyz": (1e9, 2.5, 2.5)}, "at most 50 m"),
+    ({"bound_yaw_deg": 1e9}, "beyond 180 deg"),
+    ({"bound_pitch_deg": float("nan")}, "search.bound_pitch_deg must be a finite number"),
+    ({"bound_xyz": (2.5, -1.0, 2.5)}, "positive"),
+])
+def test_search_bounds_are_refused_with_the_limit_named(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        SearchParams(**kwargs)
+
+
+def test_parameter_file_engine_group(tmp_path: Path):
+    good = tmp_path / "good.yaml"
+    good.write_text("calibrator:\n  ros__parameters:\n    seed: 3\n    engine:\n"
+                    "      labels: {merge: ['sidewalk:road']}\n      loss: {crop_top: 0.5}\n")
+    p = CalibrationParams.from_file(good)
+    assert p.labels.as_dict() == {"sidewalk": "road"} and p.loss.crop_top == 0.5
+    stray = tmp_path / "stray.yaml"
+    stray.write_text("calibrator:\n  ros__parameters:\n    loss: {crop_top: 0.5}\n")
+    with pytest.raises(ValueError, match="loss must stand under 'engine:'"):
+        CalibrationParams.from_file(stray)
+    typo = tmp_path / "typo.yaml"
+    typo.write_text("calibrator:\n  ros__parameters:\n    engine: {loss: {kindd: l2}}\n")
+    with pytest.raises(ValueError, match="loss.kindd"):
+        CalibrationParams.from_file(typo)
+    with pytest.raises(ValueError, match="'from:to'"):
+        LabelParams(merge=("road",))
+
+
+def test_shipped_config_equals_the_defaults():
+    path = Path(__file__).parents[1] / "config" / "calibrator.yaml"
+    assert CalibrationParams.from_file(path) == CalibrationParams()
+
+
+# --- the problem -------------------------------------------------------------------------------
+def test_problem_loss_is_lowest_at_the_truth_at_every_stage(problem):
+    for stage in range(len(problem.stages)):
+        at_truth = problem.loss(GROUND_TRUTH, stage)
+        assert at_truth < problem.loss(INITIAL, stage)
+        assert problem.render(GROUND_TRUTH, stage).shape == \
+            (camera().height // problem.stages[stage].scale,
+             camera().width // problem.stages[stage].scale)
+    ev = problem.evaluate(GROUND_TRUTH)
+    assert ev.coverage > 0.5 and not problem.degenerate(ev)
+    assert problem.degenerate(problem.evaluate(Pose.from_body_rpy_deg([0, 0, 6], [0, -80, 0])))
+
+
+def test_problem_prepares_the_map_once_around_an_explicit_centre(world, target):
+    far = GROUND_TRUTH.translation + [30.0, 0.0, 0.0]
+    p = Problem(world, target, camera(), far)
+    np.testing.assert_allclose(p.pmap.origin, far)
+    with pytest.raises(ValueError, match="m from the nearest map point"):
+        Problem(world, target, camera(), GROUND_TRUTH.translation + [1e5, 0, 0])
+    with pytest.raises(ValueError, match="label image is 10x10"):
+        Problem(world, np.zeros((10, 10), np.uint8), camera(), GROUND_TRUTH.translation)
+
+
+def test_label_merge_from_parameters_reaches_both_domains(world, target):
+    from semcal_ros.labels import CITYSCAPES_ID
+
+    p = Problem(world, target, camera(), GROUND_TRUTH.translation,
+                CalibrationParams(labels=LabelParams(merge=("sidewalk:road",))))
+    assert not np.any(p.target == CITYSCAPES_ID["sidewalk"])
+    assert not np.any(p.pmap.label == CITYSCAPES_ID["sidewalk"])
+
+
+# --- the search --------------------------------------------------------------------------------
+def test_full_procedure_refines_few_basins_and_recovers_the_pose(problem):
+    from semcal_ros.optimize import solve
+
+    params = problem.params
+    res = solve(problem, INITIAL, seed=1)
+    assert translation_error(res.pose, GROUND_TRUTH) < 0.03
+    assert rotation_error_deg(res.pose, GROUND_TRUTH) < 0.06
+    assert len(res.runs) == 1 + params.verification.starts
+    refined = [r for r in res.runs if r.refined]
+    assert 1 <= len(refined) <= params.verification.refine_max
+    assert res.accepted == sum(r.basin == 0 for r in res.runs) >= 1
+    assert res.evaluations == len(res.history)
+    # full resolution is spent only on the refined runs
+    full = sum(1 for run, stage, _ in res.history if stage == len(problem.stages) - 1)
+    assert full <= len(refined) * params.schedule.max_evaluations[-1] * \
+        (1 + params.schedule.final_restarts) + len(refined)
+
+
+def test_basins_merge_starts_that_end_together():
+    from semcal_ros.optimize import _basins
+
+    a = Pose.from_body_rpy_deg([0, 0, 5], [0, 10, 0])
+    b = Pose.from_body_rpy_deg([0.1, 0, 5], [0, 10.1, 0])  # 10 cm, 0.1 deg from a
+    c = Pose.from_body_rpy_deg([2.0, 0, 5], [0, 10, 0])
+    basin, heads = _basins([b, c, a], [0.2, 0.15, 0.1], 0.3, 0.3)
+    assert basin == [0, 1, 0] and heads == [2, 1]
+
+
+def test_degenerate_result_is_an_error_not_a_result(world, target):
+    from semcal_ros.loss import LossParams
+    from semcal_ros.optimize import calibrate
+
+    # every loss counts as the degenerate value: whatever the search finds is no result
+    params = CalibrationParams(loss=LossParams(degenerate_loss=1e-12),
+                               verification=VerificationParams(starts=0),
+                               schedule=ScheduleParams(scales=(4, 1), simplex=(1.0, 0.03),
+                                                       fatol=(1e-4, 1e-6),
+                                                       max_evaluations=(10, 3)))
+    with pytest.raises(ValueError, match="calibration failed: at the best pose found"):
+        calibrate(world, target, camera(), INITIAL, params)
+
+
+def test_yaw_grid_finds_an_unknown_yaw(world, target):
+    from semcal_ros.optimize import Search, _Counter, _yaw_candidates
+
+    lost = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.5, -0.5, 0.3],
+                                  GROUND_TRUTH.body_rpy_deg() + [0.0, 2.0, 97.0])
+    params = CalibrationParams(search=SearchParams(yaw_search=True, yaw_search_keep=3))
+    search = Search(Problem(world, target, camera(), lost.translation, params),
+                    _Counter(None, None))
+    candidates = _yaw_candidates(search, lost)
+    yaw_errors = [abs((c.body_rpy_deg()[2] - GROUND_TRUTH.body_rpy_deg()[2] + 180) % 360 - 180)
+                  for c in candidates]
+    assert min(yaw_errors) <= 5.0  # a grid cell within the +-5 deg search bound of the truth
+
+
+def test_free_roll_adds_a_parameter(problem, world, target):
+    from semcal_ros.optimize import Search, _Counter
+
+    fixed = Search(problem, _Counter(None, None))
+    free = Search(Problem(world, target, camera(), INITIAL.translation,
+                          CalibrationParams(search=SearchParams(free_roll=True))),
+                  _Counter(None, None))
+    assert list(fixed.free) == [0, 1, 2, 4, 5]
+    assert list(free.free) == [0, 1, 2, 3, 4, 5]
+    moved = free.pose_at(INITIAL.vector(), np.array([0, 0, 0, 1.0, 0, 0]))
+    assert moved.body_rpy_deg()[0] == pytest.approx(INITIAL.body_rpy_deg()[0] + 2.0)
