@@ -25,6 +25,7 @@ from semcal_ros.io.files import (
 )
 from semcal_ros.io.ply import read_ply
 from semcal_ros.labels import LabelMapping
+from semcal_ros.loss import LOSS_KINDS
 from semcal_ros.params import CalibrationParams
 from semcal_ros.pose import Pose, rotation_error_deg, translation_error
 
@@ -232,11 +233,11 @@ def _cell(t_cm: float, r_deg: float) -> str:
 def format_table(results: list[SceneEvaluation], paper: bool = False) -> str:
     """A Markdown table shaped like the paper's Table I: one row per scene, a column per loss
     (mean of the kept lowest-loss runs), then all-run means, success rates and seconds per run."""
-    losses = sorted({r.loss for r in results}, key=lambda k: ("l2", "huber").index(k))
+    losses = sorted({r.loss for r in results}, key=list(LOSS_KINDS).index)
     rows: dict[str, dict[str, SceneEvaluation]] = {}
     for r in results:
         rows.setdefault(r.scene, {})[r.loss] = r
-    names = {"l2": "L2", "huber": "Huber"}
+    names = LOSS_KINDS
     head = ["scene", "kept of runs"] + [f"{names[k]} (kept)" for k in losses]
     head += [f"{names[k]} (all runs)" for k in losses]
     head += [f"{names[k]} success" for k in losses] + ["s/run"]

@@ -19,6 +19,10 @@ import numpy as np
 from semcal_ros.labels import INVALID, SKY, palette_array
 
 
+#: The per-pixel costs, by parameter value, with the name tables print: the one list of them.
+LOSS_KINDS = {"l2": "L2", "huber": "Huber"}
+
+
 @dataclass(frozen=True)
 class LossParams:
     kind: str = "l2"  # "l2" (squared colour distance) or "huber"
@@ -28,8 +32,9 @@ class LossParams:
     degenerate_loss: float = 10.0  # loss of a view that shows (almost) none of the map
 
     def __post_init__(self) -> None:
-        if self.kind not in ("l2", "huber"):
-            raise ValueError(f"loss kind must be 'l2' or 'huber', not '{self.kind}'")
+        if self.kind not in LOSS_KINDS:
+            raise ValueError(f"loss.kind must be one of {', '.join(LOSS_KINDS)}, not "
+                             f"'{self.kind}'")
         if not 0.0 <= self.crop_top < 1.0:
             raise ValueError("crop_top must be in [0, 1)")
 

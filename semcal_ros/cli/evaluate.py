@@ -18,8 +18,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--runs", type=int, default=30, help="initial guesses per scene (default 30)")
     p.add_argument("--keep", type=int, default=10, help="lowest-loss runs kept (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial guesses (default 0)")
-    p.add_argument("--loss", default="l2", choices=("l2", "huber", "both"),
-                   help="loss of the registration (default l2; both = two columns)")
+    from semcal_ros.loss import LOSS_KINDS
+
+    p.add_argument("--loss", default="l2", choices=(*LOSS_KINDS, "both", "all"),
+                   help="loss of the registration (default l2; all (or both) = a column each)")
     p.add_argument("--config", help="ROS 2 parameter file of the engine (config/calibrator.yaml)")
     p.add_argument("--label-mapping", help="YAML changing the class alignment")
     p.add_argument("--map", help="map PLY to use instead of DIR/map.ply (relative to DIR unless "
@@ -59,7 +61,9 @@ def run(args: argparse.Namespace) -> int:
         for name in ("labels.png", "camera_info.yaml", "ground_truth.yaml"):
             if not (folder / name).is_file():
                 raise FileNotFoundError(f"{folder} is not a scene folder: {name} is missing")
-    losses = ("l2", "huber") if args.loss == "both" else (args.loss,)
+    from semcal_ros.loss import LOSS_KINDS
+
+    losses = tuple(LOSS_KINDS) if args.loss in ("both", "all") else (args.loss,)
     results = []
     bar = tqdm(total=len(folders) * len(losses) * protocol.runs, unit="run", file=sys.stderr,
                disable=args.quiet, dynamic_ncols=True)
