@@ -83,5 +83,5 @@ def test_fast_matches_reference_on_random_images():
 
 
 def test_bad_loss_kind():
-    with pytest.raises(ValueError, match="loss kind"):
+    with pytest.raises(ValueError, match="loss.kind must be one of l2, huber"):
         LossParams(kind="l1")
