@@ -40,7 +40,7 @@ needs_data = pytest.mark.skipif(
     reason=f"shared real data not found at {DATA} (expected ../shared/data beside the checkout)")
 
 
-# ---------------------------------------------------------------- operators vs PyTorch's definitions
+# ------------------------------------------------------------ operators vs PyTorch's definitions
 
 class _NoWeights:
     def take(self, key, shape):  # the operator tests use no checkpoint tensors

@@ -29,7 +29,7 @@ from semcal_ros.camera import CameraModel
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.io import files, kitti, ply
 from semcal_ros.io.scene_scans import write_scan_poses
-from semcal_ros.labels import CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID, SEMANTIC_KITTI
+from semcal_ros.labels import CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID, KITTI_ID
 from semcal_ros.pose import Pose
 
 #: The paper's KITTI settings as the ``engine:`` group of a calibrator parameter file.
@@ -38,7 +38,7 @@ KITTI_ENGINE_SETTINGS = {
     "labels": {"merge": ["sidewalk:road"]},  # road and sidewalk merged in both domains
     "render": {"crop_radius": 75.0},         # map cropped to 75 m around the initial position
 }
-#: KITTI odometry colour images are 1241 x 376 (sequence 00-02, 13-21).
+#: The left colour camera's folder (projection P2); its images set the camera size.
 IMAGE_NAME = "image_2"
 
 
@@ -83,7 +83,7 @@ def projected_truth_labels(cloud: LabelledCloud, t_cam_lidar: np.ndarray, camera
     """
     lut = np.full(65536, INVALID, np.uint8)
     for kitti_name, city in DEFAULT_ALIGNMENT.items():
-        lut[next(i for i, n in SEMANTIC_KITTI.items() if n == kitti_name)] = CITYSCAPES_ID[city]
+        lut[KITTI_ID[kitti_name]] = CITYSCAPES_ID[city]
     pts = cloud.xyz @ t_cam_lidar[:3, :3].T + t_cam_lidar[:3, 3]
     uv, ok = camera.project(pts)
     ok &= pts[:, 2] > 0.5

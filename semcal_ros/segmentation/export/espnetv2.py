@@ -17,6 +17,7 @@ Architecture as published in sacmehta/EdgeNets (``model/segmentation/espnetv2.py
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import onnx
 
@@ -114,7 +115,8 @@ def _eesp(g: GraphBuilder, x: T, prefix: str, cout: int, stride: int, r_lim: int
     return g.prelu(expanded, f"{prefix}.module_act.weight")
 
 
-def _down_sampler(g: GraphBuilder, x: T, prefix: str, cout: int, r_lim: int, image_at) -> T:
+def _down_sampler(g: GraphBuilder, x: T, prefix: str, cout: int, r_lim: int,
+                  image_at: Callable[[int], T]) -> T:
     """avg-pool(x) || EESP(x, stride 2), plus the reinforced input image, then PReLU."""
     pooled = g.avg_pool3s2(x)
     strided = _eesp(g, x, f"{prefix}.eesp", cout - x.c, 2, r_lim)

@@ -92,7 +92,8 @@ def export_model(arch: str, weights_path: str | Path, out: str | Path,
     config_path = config_path_for(out)
     header = (f"# Model config of {out.name}, written by `semcal export-model {arch}`.\n"
               f"# {a.note}; 20 outputs, 19 = background (ignored).\n")
-    config_path.write_text(header + yaml.safe_dump(config, sort_keys=False, width=100, default_flow_style=None))
+    config_path.write_text(header + yaml.safe_dump(config, sort_keys=False, width=100,
+                                                   default_flow_style=None))
     builder_stats = _stats(model)
     return ExportResult(out, config_path, weights.parameters, builder_stats[0], builder_stats[1])
 

@@ -83,7 +83,7 @@ class T:
 
 
 def adaptive_windows(size_in: int, size_out: int) -> list[tuple[int, int]]:
-    """PyTorch's adaptive average pooling windows along one axis: [floor(i*n/m), ceil((i+1)*n/m))."""
+    """PyTorch's adaptive average pooling windows on one axis: [floor(i n/m), ceil((i+1) n/m))."""
     return [((i * size_in) // size_out, -((-(i + 1) * size_in) // size_out))
             for i in range(size_out)]
 
