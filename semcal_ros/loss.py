@@ -30,6 +30,11 @@ class LossParams:
     crop_top: float = 0.0  # fraction of image rows, from the top, left out of the loss
     min_coverage: float = 0.05  # fewer rendered pixels over the target's non-sky area = degenerate
     degenerate_loss: float = 10.0  # loss of a view that shows (almost) none of the map
+    # cost of a target pixel of a map class where no map point landed; 0 = masked (the paper).
+    # Masking rewards views that show less of the map: a pose that renders only the easy road
+    # wins over one that also renders the (imperfect) buildings and trees. A cost makes looking
+    # away cost something too.
+    uncovered_cost: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -37,6 +42,8 @@ class LossParams:
                              f"'{self.kind}'")
         if not 0.0 <= self.crop_top < 1.0:
             raise ValueError("crop_top must be in [0, 1)")
+        if not 0.0 <= self.uncovered_cost <= 3.0:  # 3 = the largest colour distance
+            raise ValueError(f"loss.uncovered_cost must be in [0, 3], got {self.uncovered_cost}")
 
 
 def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
@@ -61,11 +68,16 @@ def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
     r_eff = np.where(empty, SKY, r)
     scene = (t != INVALID) & (t != SKY)
     n_scene = int(scene.sum())
-    coverage = float((scene & ~empty).sum()) / n_scene if n_scene else 0.0
+    uncovered = int((scene & empty).sum())
+    coverage = float(n_scene - uncovered) / n_scene if n_scene else 0.0
     n_valid = int(valid.sum())
+    total = float(table[r_eff[valid], t[valid]].sum())
+    if params.uncovered_cost > 0:
+        n_valid += uncovered
+        total += params.uncovered_cost * uncovered
     if n_valid == 0 or coverage < params.min_coverage:
         return params.degenerate_loss, coverage
-    return float(table[r_eff[valid], t[valid]].sum() / n_valid), coverage
+    return total / n_valid, coverage
 
 
 @numba.njit(cache=True, nogil=True)
@@ -111,6 +123,9 @@ class LabelLoss:
         total, n_valid, n_scene, n_covered = _loss_kernel(
             np.ascontiguousarray(rendered).ravel(), self.target, self.table, self.start)
         coverage = n_covered / n_scene if n_scene else 0.0
+        if self.params.uncovered_cost > 0:
+            n_valid += n_scene - n_covered
+            total += self.params.uncovered_cost * (n_scene - n_covered)
         if n_valid == 0 or coverage < self.params.min_coverage:
             return self.params.degenerate_loss, coverage
         return total / n_valid, coverage

@@ -41,6 +41,29 @@ def test_mean_over_valid_pixels_and_masking():
     assert ref_cov == pytest.approx(coverage)
 
 
+def test_uncovered_cost_counts_holes_over_map_classes():
+    target = np.full((4, 10), ROAD, np.uint8)
+    target[0] = SKY
+    rendered = np.full((4, 10), ROAD, np.uint8)
+    rendered[0] = INVALID  # over the sky: a match either way
+    rendered[3, :2] = BUILDING
+    rendered[2, :4] = INVALID  # 4 holes over road: masked by the paper, costed here
+    params = LossParams(uncovered_cost=0.5)
+    value, coverage = LabelLoss(target, params).evaluate(rendered)
+    assert value == pytest.approx((2 * colour_l2(BUILDING, ROAD) + 4 * 0.5) / 40)
+    assert coverage == pytest.approx(26 / 30)
+    ref, _ = loss_reference(rendered, target, LabelLoss(target, params).table, params)
+    assert ref == pytest.approx(value)
+    # a view that no longer shows the mismatching part wins under the paper's masked mean,
+    # and loses once uncovered map classes cost something
+    away = rendered.copy()
+    away[3] = INVALID
+    assert LabelLoss(target, LossParams())(away) < LabelLoss(target, LossParams())(rendered)
+    assert LabelLoss(target, params)(away) > value
+    with pytest.raises(ValueError, match="uncovered_cost"):
+        LossParams(uncovered_cost=-1.0)
+
+
 def test_beta_normalisation_does_not_reward_masking():
     # the same error rate over fewer valid pixels gives the same loss
     target = np.full((10, 10), ROAD, np.uint8)

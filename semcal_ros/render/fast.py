@@ -23,6 +23,9 @@ from semcal_ros.render.prepare import CHUNK, PreparedMap
 from semcal_ros.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
 
 # OpenMP is in the numba wheel; without this numba first probes TBB and warns about an old one.
+# Idle pool threads sleep instead of spinning: on 2 shared cores a spinning thread steals the
+# time of the other jobs (measured: 10-20 % less CPU per render, same wall time).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 if not os.environ.get("NUMBA_THREADING_LAYER"):
     numba.config.THREADING_LAYER = "omp"
 
