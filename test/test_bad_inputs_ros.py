@@ -272,6 +272,7 @@ def _startup_cases(tmp_path: Path) -> list[tuple[str, str, dict, str]]:
                                       "classes": ["pole", "building"], "means": [0] * 5,
                                       "stds": [1] * 5}))
     (tmp_path / "broken.onnx").write_bytes(b"this is no model")
+    (tmp_path / "a_file").write_text("not a folder")
     (tmp_path / "image.yaml").write_text(yaml.safe_dump({"kind": "image"}))
     (tmp_path / "empty_bag").mkdir()
     (tmp_path / "bad_meta").mkdir()
@@ -295,6 +296,13 @@ def _startup_cases(tmp_path: Path) -> list[tuple[str, str, dict, str]]:
          "cannot read bag"),
         ("bag-damaged-chunk", "bag_player", {"bag": str(damaged)},
          "Chunk checksum mismatch"),
+        ("calibrator-bad-engine-parameter", "calibrator",
+         {"engine.schedule.max_evaluations": [-1, 10, 10]}, "max_evaluations"),
+        ("calibrator-missing-map-file", "calibrator", {"map_file": str(tmp_path / "no.ply")},
+         "map file not found"),
+        ("calibrator-overlay-file-under-a-file", "calibrator",
+         {"overlay_file": str(tmp_path / "a_file" / "overlay.png")},
+         "parameter 'overlay_file': " + str(tmp_path / "a_file" / "overlay.png")),
         ("map-builder-bad-extrinsic", "map_builder", {"lidar_extrinsic": [0.0, 0.0, 0.0]},
          "lidar_extrinsic must be [x, y, z, qx, qy, qz, qw]"),
     ]

@@ -28,8 +28,8 @@ pytestmark = pytest.mark.ros
 
 #: An engine schedule that converges roughly in ~80 evaluations (about 3 s on the demo map):
 #: these tests are about the node, not the optimum.
-CHEAP_ENGINE = {"schedule.max_evaluations": [40, 20, 20], "schedule.final_restarts": 0,
-                "verification.starts": 0}
+CHEAP_ENGINE = {"engine.schedule.max_evaluations": [40, 20, 20],
+                "engine.schedule.final_restarts": 0, "engine.verification.starts": 0}
 
 
 @dataclass
@@ -44,6 +44,7 @@ class Calibrator:
     watcher: Any
     scene: Path
     camera_msgs: dict[str, Any]
+    map_points: str
 
     def diag(self) -> dict[str, str]:
         return self.watcher.get("calibrator")
@@ -96,7 +97,8 @@ def calibrator(tmp_path_factory, demo_scene):
         node.destroy_timer(timer)
         client = CalibrateClient(node)
         client.wait_for_server(20)
-        yield Calibrator(graph, proc, node, executor, client, watcher, demo_scene, msgs)
+        yield Calibrator(graph, proc, node, executor, client, watcher, demo_scene, msgs,
+                         watcher.get("calibrator")["map_points"])
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -149,7 +151,7 @@ def assert_succeeded(out: Any, scene: Path) -> None:
     assert translation_error(pose, truth) < 0.5 * translation_error(start, truth)
     assert abs(np.linalg.norm(pose.quaternion) - 1.0) < 1e-6
     assert 0.0 < r.loss < 1.0 and math.isfinite(r.loss)
-    assert 0 < r.evaluations <= sum(CHEAP_ENGINE["schedule.max_evaluations"]) + 10
+    assert 0 < r.evaluations <= sum(CHEAP_ENGINE["engine.schedule.max_evaluations"]) + 10
     assert r.seconds > 0.0
     assert (r.spread_translation_m, r.spread_rotation_deg) == (0.0, 0.0)  # one run
 
@@ -177,3 +179,190 @@ def test_goal_sequences_on_one_calibrator_lose_no_result(calibrator):
     assert_aborted(c.call(frame_problem), "initial_pose is in frame 'odom'")
     assert c.proc.running()
     assert "Error raised in execute callback" not in c.proc.log()
+
+
+# --- bad inputs: each refused with one message naming it, and what the node holds is kept -----
+def _goal_case(change):
+    def run(c: Calibrator, expected: str) -> str:
+        goal = c.good_goal()
+        change(goal)
+        out = c.call(goal, timeout=30)
+        assert_aborted(out)
+        return out.result.message
+    return run
+
+
+def _set(path: str, value: Any):
+    def change(goal: Any) -> None:
+        *parents, last = path.split(".")
+        obj = goal
+        for name in parents:
+            obj = getattr(obj, name)
+        setattr(obj, last, value)
+    return change
+
+
+def _message_case(topic: str, make: Any, key: str):
+    """Publish a bad message until the calibrator's diagnostics show it refused."""
+    def run(c: Calibrator, expected: str) -> str:
+        from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+        kind = {"/map": PointCloud2, "/camera/camera_info": CameraInfo}.get(topic, Image)
+        profile = qos.latched() if topic == "/map" else qos.reliable(1)
+        pub = c.node.create_publisher(kind, topic, profile)
+        try:
+            msg = make(c)
+            deadline = time.monotonic() + 20
+            while expected not in c.diag().get(f"input_error.{key}", ""):
+                if time.monotonic() > deadline:
+                    break
+                pub.publish(msg)
+                end = time.monotonic() + 0.3
+                while time.monotonic() < end:
+                    c.executor.spin_once(timeout_sec=0.05)
+            return c.diag().get(f"input_error.{key}", f"(no refusal of {topic}: {c.diag()})")
+        finally:
+            c.node.destroy_publisher(pub)
+    return run
+
+
+def _cloud(c: Calibrator, xyz: np.ndarray) -> Any:
+    from semcal_ros.cloud import LabelledCloud
+
+    cloud = LabelledCloud(np.asarray(xyz, float), np.full(len(xyz), 50, np.uint16))
+    return conv.cloud_to_pointcloud2(cloud, conv.make_header("map", 1.0), extra_fields=False)
+
+
+def _camera_info(c: Calibrator, **k_entries: float) -> Any:
+    msg = c.camera_msgs["/camera/camera_info"]
+    out = type(msg)()
+    out.header, out.width, out.height = msg.header, msg.width, msg.height
+    out.distortion_model, out.d, out.r, out.p = msg.distortion_model, msg.d, msg.r, msg.p
+    k = np.array(msg.k, float)
+    for index, value in k_entries.items():
+        k[int(index[1:])] = value
+    out.k = k
+    return out
+
+
+CALIBRATOR_CASES = [
+    ("goal-translation-bound-1e9", _goal_case(_set("bound_translation_m.x", 1e9)),
+     "bound_translation_m.x 1e+09 m is beyond what the search can cover (at most 50 m)"),
+    ("goal-rpy-bound-1e9", _goal_case(_set("bound_rpy_deg.z", 1e9)),
+     "bound_rpy_deg.z 1e+09 deg is beyond what the search can cover (at most 180 deg)"),
+    ("goal-negative-bound", _goal_case(_set("bound_rpy_deg.y", -1.0)),
+     "bound_rpy_deg.y must be >= 0 (0 = node default), got -1.0"),
+    ("goal-nan-bound", _goal_case(_set("bound_translation_m.z", float("nan"))),
+     "bound_translation_m.z must be >= 0"),
+    ("goal-nan-position", _goal_case(_set("initial_pose.pose.position.x", float("nan"))),
+     "initial_pose contains NaN or infinite values"),
+    ("goal-infinite-orientation", _goal_case(_set("initial_pose.pose.orientation.x",
+                                                  float("inf"))),
+     "initial_pose contains NaN or infinite values"),
+    ("goal-zero-quaternion", _goal_case(lambda g: (_set("initial_pose.pose.orientation.w", 0.0)(g),
+                                                   _set("initial_pose.pose.orientation.x", 0.0)(g),
+                                                   _set("initial_pose.pose.orientation.y", 0.0)(g),
+                                                   _set("initial_pose.pose.orientation.z", 0.0)(g))),
+     "not a unit quaternion (norm 0)"),
+    ("goal-pose-in-odom", _goal_case(_set("initial_pose.header.frame_id", "odom")),
+     "initial_pose is in frame 'odom' but the map is in 'map'"),
+    ("goal-pose-100-km-away", _goal_case(_set("initial_pose.pose.position.x", 1e5)),
+     "km from the map (map spans x "),
+    ("goal-other-camera", _goal_case(_set("camera_frame_id", "rear_camera")),
+     "goal asks for camera 'rear_camera' but the CameraInfo is from 'camera_optical'"),
+    ("goal-unknown-loss", _goal_case(_set("loss", "l1")), "loss must be 'l2', 'huber'"),
+    ("goal-bad-roll", _goal_case(_set("roll", 7)), "roll must be ROLL_DEFAULT"),
+    ("goal-bad-yaw-search", _goal_case(_set("yaw_search", 9)), "yaw_search must be 0-2"),
+    ("goal-negative-verification", _goal_case(_set("verification_starts", -5)),
+     "verification_starts must be >= 0 (-1 = node default), got -5"),
+    ("map-empty", _message_case("/map", lambda c: _cloud(c, np.zeros((0, 3))), "map"),
+     "the map message is empty; keeping the map held ("),
+    ("map-all-nan", _message_case("/map", lambda c: _cloud(c, np.full((500, 3), np.nan)), "map"),
+     "has no finite point (500 points, all NaN or infinite); keeping the map held"),
+    ("camera-info-nan-fx", _message_case("/camera/camera_info",
+                                         lambda c: _camera_info(c, k0=float("nan")),
+                                         "CameraInfo"),
+     "K contains NaN or infinite values"),
+    ("camera-info-k-zeros", _message_case(
+        "/camera/camera_info", lambda c: _camera_info(c, **{f"k{i}": 0.0 for i in range(9)}),
+        "CameraInfo"), "K is all zeros (camera not calibrated)"),
+    ("camera-info-negative-fy", _message_case("/camera/camera_info",
+                                              lambda c: _camera_info(c, k4=-480.0),
+                                              "CameraInfo"),
+     "focal lengths must be positive"),
+    ("labels-rgb-encoding", _message_case(
+        "/camera/labels", lambda c: c.camera_msgs["/camera/image_raw"], "label image"),
+     "expected a mono8 label image, got encoding 'rgb8'"),
+    ("camera-image-mono", _message_case(
+        "/camera/image_raw", lambda c: c.camera_msgs["/camera/labels"], "camera image"),
+     "expected an rgb8 or bgr8 image, got encoding 'mono8'"),
+]
+
+
+@pytest.mark.parametrize("case,expected", [c[1:] for c in CALIBRATOR_CASES],
+                         ids=[c[0] for c in CALIBRATOR_CASES])
+def test_calibrator_refuses_bad_input(calibrator, case, expected):
+    message = case(calibrator, expected)
+    assert expected in message, message
+    assert "\n" not in message and "Traceback" not in calibrator.proc.log()
+    assert calibrator.proc.running()
+
+
+def test_calibrator_kept_its_inputs_and_serves_a_good_goal_after_the_bad_inputs(calibrator):
+    """After every refusal above (no good message re-sent since), the node still holds the
+    map, the label image and CameraInfo it had, and calibrates."""
+    c = calibrator
+    d = c.diag()
+    assert d["map_points"] == c.map_points != "0"
+    assert d["camera_info"] == "960x600 'camera_optical'"
+    assert d["label_image"] == "960x600"
+    assert "CameraInfo: CameraInfo" not in c.proc.log()  # the prefix once, not twice
+    assert "ignoring CameraInfo: K contains NaN or infinite values" in c.proc.log()
+    assert_succeeded(c.call(c.good_goal()), c.scene)
+
+
+def test_a_goal_while_one_runs_is_answered_with_the_reason(calibrator):
+    c = calibrator
+    first = c.client.send(c.executor, c.good_goal())
+    spin_until(c.executor, lambda: c.diag().get("state", "").startswith("running"), 20,
+               "the first goal to run")
+    second = c.call(c.good_goal(), timeout=20)
+    assert_aborted(second, "busy: goal ", "has been running for", "(one calibration at a time)")
+    spin_until(c.executor, lambda: c.diag()["last_rejection"].startswith("busy: goal "), 5,
+               "the busy note in the diagnostics")
+    assert_succeeded(c.client.wait(c.executor, first, timeout=120), c.scene)
+    third = c.call(c.good_goal(map_frame="odom"))  # the next goal clears the busy note
+    assert_aborted(third, "frame 'odom'")
+    spin_until(c.executor, lambda: c.diag().get("last_rejection") == "none", 5,
+               "last_rejection to be cleared")
+
+
+def test_a_degenerate_best_pose_is_never_published(calibrator):
+    """Looking straight up, every yaw of the yaw search sees sky: the best pose is degenerate
+    (once published at t = -2.26e8 m with loss 10); it must come back as a failure."""
+    from geometry_msgs.msg import TransformStamped
+
+    from semcal_ros.io.files import read_pose
+    from semcal_ros.pose import Pose
+    from semcal_ros.ros.client import make_goal
+
+    c = calibrator
+    published = []
+    sub = c.node.create_subscription(TransformStamped, "/calibration/transform",
+                                     published.append, qos.latched())
+    try:
+        spin_until(c.executor, lambda: published, 10, "the last published transform")
+        start = read_pose(c.scene / "initial.yaml")
+        up = Pose.from_body_rpy_deg(start.translation, [0.0, -89.0, 0.0])
+        out = c.call(make_goal(up, yaw_search=2), timeout=120)
+        assert out.status == "aborted" and out.result.success is False, out.result
+        message = out.result.message
+        assert message.startswith("calibration failed: ") and "loss 10" in message, message
+        assert message.count("calibration failed") == 1, message
+        assert_empty_transform(out.result)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            c.executor.spin_once(timeout_sec=0.05)
+        assert len(published) == 1  # nothing new on calibration/transform
+    finally:
+        c.node.destroy_subscription(sub)

@@ -325,10 +325,13 @@ def test_calibrator_config_file_holds_only_node_and_engine_parameters():
     flat = load_node_params(Path(__file__).resolve().parents[1] / "config" / "calibrator.yaml",
                             "calibrator")
     node, engine = CalibratorNodeParams(), CalibrationParams()
-    unknown = set(flat) - set(dataclass_fields_flat(node)) - set(dataclass_fields_flat(engine))
-    assert not unknown
-    apply_flat(node, flat, strict=False)
-    apply_flat(engine, flat, strict=False)
+    engine_flat = {k[len("engine."):]: v for k, v in flat.items() if k.startswith("engine.")}
+    node_flat = {k: v for k, v in flat.items() if not k.startswith("engine.")}
+    assert engine_flat, "the engine's parameters stand under 'engine:'"
+    assert set(node_flat) <= set(dataclass_fields_flat(node)), node_flat
+    assert set(engine_flat) <= set(dataclass_fields_flat(engine)), engine_flat
+    apply_flat(node, node_flat, strict=True)
+    apply_flat(engine, engine_flat, strict=True)
 
 
 # --- the Calibrate goal ----------------------------------------------------------------------

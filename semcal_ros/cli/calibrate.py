@@ -1,9 +1,15 @@
-"""``semcal calibrate``: one calibration from files, the result as a pose YAML."""
+"""``semcal calibrate``: one calibration from files, the result as a pose YAML.
+
+Every input is checked before the (minutes long) work starts, with the checks the ``calibrate``
+action uses (:mod:`semcal_ros.validation`): parameters named, output folders writable, frames
+matching, the initial pose near the map; a degenerate best pose is an error, never a result.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -21,30 +27,70 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--config", help="ROS 2 parameter file (default: built-in defaults, "
                                     "as config/calibrator.yaml)")
     p.add_argument("--label-mapping", help="YAML changing the class alignment")
+    p.add_argument("--map-frame", default="map",
+                   help="frame of the map; the initial pose's frame_id must match (default: map)")
     p.add_argument("--seed", type=int, default=0, help="seed of the verification starts")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
+def _pose_frame(path: str) -> str | None:
+    """The ``frame_id`` a pose YAML declares (None: none; the map frame is then assumed)."""
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text())
+    frame = data.get("frame_id") if isinstance(data, dict) else None
+    return str(frame) if frame is not None else None
+
+
 def run(args: argparse.Namespace) -> int:
+    try:
+        return _run(args)
+    except ValueError as exc:  # some library messages span lines (YAML parser errors)
+        raise ValueError(" ".join(str(exc).split())) from None
+
+
+def _run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from semcal_ros.engine_config import load_calibration_params
+    from semcal_ros import validation
     from semcal_ros.io import files, ply
     from semcal_ros.labels import LabelMapping, colorize
     from semcal_ros.optimize import Progress, calibrate
+    from semcal_ros.params import CalibrationParams
+    from semcal_ros.problem import mapping_for
     from semcal_ros.overlay import loss_curve, render_overlay
 
-    params = load_calibration_params(args.config)
+    # everything checkable is checked before the work starts (the same checks as the action)
+    params = CalibrationParams.from_file(args.config)
+    validation.check(validation.output_problems(args.output, "--output")
+                     + validation.output_problems(args.overlay, "--overlay")
+                     + validation.output_problems(args.loss_curve, "--loss-curve"))
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
     mapping = LabelMapping.from_yaml(args.label_mapping) if args.label_mapping else LabelMapping()
     camera = files.read_camera_info(args.camera_info)
+    validation.check(validation.camera_problems(camera.width, camera.height, camera.k, camera.d),
+                     f"{args.camera_info}: ")
     labels = files.read_label_image(args.labels)
+    if labels.shape != (camera.height, camera.width):
+        raise ValueError(f"label image is {labels.shape[1]}x{labels.shape[0]} but camera_info "
+                         f"says {camera.width}x{camera.height}")
     initial = files.read_pose(args.initial)
-    cloud = ply.read_ply(args.map)
+    validation.check(validation.frame_problems(_pose_frame(args.initial), args.map_frame,
+                                               f"initial pose {args.initial}"))
     rgb = files.read_rgb_image(args.image) if args.image else None
     if rgb is not None and rgb.shape[:2] != labels.shape:
         raise ValueError(f"--image is {rgb.shape[1]}x{rgb.shape[0]} but the label image is "
                          f"{labels.shape[1]}x{labels.shape[0]}")
+    cloud = ply.read_ply(args.map)
+    finite = cloud.finite()
+    if len(finite) < len(cloud):
+        raise ValueError(f"{args.map}: map contains {len(cloud) - len(finite)} NaN or infinite "
+                         f"points")
+    validation.check(validation.reach_problems(initial.translation,
+                                               validation.map_bounds(cloud.xyz), params,
+                                               f"initial pose {args.initial}"))
 
     # disable=None: a bar on a terminal, none in logs (tqdm's own rule)
     bar = tqdm(total=None, unit="eval", disable=True if args.quiet else None, file=sys.stderr,
@@ -60,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         result = calibrate(cloud, labels, camera, initial, params, mapping, args.seed, progress)
     finally:
         bar.close()
+    validation.check(validation.result_problems(float(result.loss), params),
+                     "calibration failed: ")
     files.write_pose(args.output, result.pose, result.to_dict())
     rpy = result.pose.body_rpy_deg()
     t = result.pose.translation
@@ -72,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     if args.overlay:
         background = rgb if rgb is not None else colorize(labels)
         files.write_rgb_image(args.overlay, render_overlay(
-            cloud, camera, result.pose, background, mapping, params.render))
+            cloud, camera, result.pose, background, mapping_for(params, mapping), params.render))
         print(f"overlay written to {args.overlay}")
     if args.loss_curve:
         files.write_rgb_image(args.loss_curve, loss_curve(result.history))

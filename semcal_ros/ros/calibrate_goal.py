@@ -7,12 +7,12 @@ is named in one message, because the caller only sees the action result's text.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from semcal_ros import validation
 from semcal_ros.camera import CameraModel
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.config import apply_flat
@@ -54,25 +54,16 @@ def _vector(v: Any) -> list[float]:
 
 
 def goal_problems(goal: Any, inputs: Inputs) -> list[str]:
-    """Everything wrong with ``goal`` given ``inputs``; empty when it can run."""
-    problems = []
+    """Everything wrong with ``goal`` given ``inputs``; empty when it can run. The checks are
+    :mod:`semcal_ros.validation`'s, shared with ``semcal calibrate``."""
     pose = goal.initial_pose.pose
-    values = [pose.position.x, pose.position.y, pose.position.z, pose.orientation.x,
-              pose.orientation.y, pose.orientation.z, pose.orientation.w]
-    if not all(math.isfinite(v) for v in values):
-        problems.append("initial_pose contains NaN or infinite values")
-    else:
-        norm = math.sqrt(sum(v * v for v in values[3:]))
-        if abs(norm - 1.0) > 1e-3:
-            problems.append(f"initial_pose orientation is not a unit quaternion (norm {norm:.6g})")
-    frame = goal.initial_pose.header.frame_id
-    if frame and frame != inputs.map_frame:
-        problems.append(f"initial_pose is in frame '{frame}' but the map is in "
-                        f"'{inputs.map_frame}' (give the pose in the map frame)")
-    for name, axes in (("bound_translation_m", "xyz"), ("bound_rpy_deg", "xyz")):
-        for axis, value in zip(axes, _vector(getattr(goal, name))):
-            if not math.isfinite(value) or value < 0:
-                problems.append(f"{name}.{axis} must be >= 0 (0 = node default), got {value}")
+    position = [pose.position.x, pose.position.y, pose.position.z]
+    orientation = [pose.orientation.x, pose.orientation.y, pose.orientation.z,
+                   pose.orientation.w]
+    problems = validation.pose_problems(position, orientation, "initial_pose")
+    problems += validation.frame_problems(goal.initial_pose.header.frame_id, inputs.map_frame)
+    problems += validation.bound_problems(_vector(goal.bound_translation_m),
+                                          _vector(goal.bound_rpy_deg))
     if goal.verification_starts < -1:
         problems.append(f"verification_starts must be >= 0 (-1 = node default), "
                         f"got {goal.verification_starts}")
@@ -146,6 +137,8 @@ def goal_request(goal: Any, inputs: Inputs, defaults: CalibrationParams,
                    np.array([p.orientation.x, p.orientation.y, p.orientation.z,
                              p.orientation.w]))
     params = goal_params(goal, defaults)
+    validation.check(validation.reach_problems(
+        initial.translation, validation.map_bounds(inputs.map_cloud.xyz), params))
     camera_frame = goal.camera_frame_id or inputs.camera.frame_id or "camera_optical"
     seed = int(goal.seed) if goal.seed >= 0 else default_seed
     return Request(initial, params, seed if seed >= 0 else None, inputs.map_frame, camera_frame)

@@ -18,6 +18,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
+from semcal_ros import validation
 from semcal_ros.camera import CameraModel
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.pose import Pose
@@ -214,22 +215,23 @@ def numpy_to_image(img: np.ndarray, encoding: str, header: Header) -> Image:
 
 # --- CameraInfo ------------------------------------------------------------------------------
 def camera_info_to_model(msg: CameraInfo) -> CameraModel:
-    """CameraModel of the raw image; frame id from the header."""
+    """CameraModel of the raw image; frame id from the header. ValueError naming every problem
+    (the caller says it is a CameraInfo; the messages do not repeat it)."""
     model = msg.distortion_model
     d = np.asarray(msg.d, dtype=float)
+    problems = []
     if model == "rational_polynomial" and np.any(d[5:] != 0):
-        raise ValueError("CameraInfo: rational_polynomial with k4..k6 != 0 is not supported "
-                         "(plumb_bob only)")
+        problems.append("rational_polynomial with k4..k6 != 0 is not supported (plumb_bob only)")
     if model not in ("plumb_bob", "rational_polynomial", "", "none"):
-        raise ValueError(f"CameraInfo: unsupported distortion model '{model}' (plumb_bob only)")
+        problems.append(f"unsupported distortion model '{model}' (plumb_bob only)")
     if msg.binning_x > 1 or msg.binning_y > 1:
-        raise ValueError(f"CameraInfo: binning {msg.binning_x}x{msg.binning_y} is not supported")
+        problems.append(f"binning {msg.binning_x}x{msg.binning_y} is not supported")
     roi = msg.roi
     if roi.width and (roi.width, roi.height) != (msg.width, msg.height):
-        raise ValueError("CameraInfo: a region of interest smaller than the image is not supported")
+        problems.append("a region of interest smaller than the image is not supported")
     k = np.asarray(msg.k, dtype=float).reshape(3, 3)
-    if k[2, 2] == 0:
-        raise ValueError("CameraInfo: K is all zeros (camera not calibrated)")
+    problems += validation.camera_problems(msg.width, msg.height, k, d)
+    validation.check(problems)
     return CameraModel(int(msg.width), int(msg.height), k, d[:5] if d.size else np.zeros(5),
                        msg.header.frame_id or "camera_optical")
 

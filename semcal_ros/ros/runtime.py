@@ -43,6 +43,23 @@ def use_default_fastdds_profile() -> None:
         os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
 
 
+def release_free_memory() -> None:
+    """Hand the heap's free pages back to the system (glibc ``malloc_trim``; nothing elsewhere).
+
+    After a large, short-lived working set (a goal's prepared map and render buffers) glibc keeps
+    the freed pages in its arenas, and RSS stays at the high-water mark of every arena; nodes call
+    this when such a piece of work has ended.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
+
+
 def run_node(make_node: Callable[[], "object"], threads: int = 1,
              args: list[str] | None = None) -> int:
     """Init rclpy, build the node, spin it until shut down; the process exit code."""
