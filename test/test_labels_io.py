@@ -69,13 +69,3 @@ def test_pose_yaml_forms(tmp_path):
     p.write_text("translation: [1, 2, 6]\nrotation: [0, 0, 0, 3]\n")
     with pytest.raises(ValueError, match="unit quaternion"):
         files.read_pose(p)
-
-
-def test_shipped_calibrator_config_equals_the_defaults():
-    from pathlib import Path
-
-    from semcal_ros.engine_config import load_calibration_params
-    from semcal_ros.params import CalibrationParams
-
-    path = Path(__file__).parents[1] / "config" / "calibrator.yaml"
-    assert load_calibration_params(path) == CalibrationParams()
