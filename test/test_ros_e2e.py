@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
@@ -209,8 +210,8 @@ def test_cloud_segmenter_node_adds_labels(graph, listener, tmp_path):
     config.write_text(yaml.safe_dump({"kind": "range", "height": 64, "width": 2048,
                                       "classes": ["pole", "building"], "means": means,
                                       "stds": stds}))
-    graph.start_node("cloud_segmenter", params={"model": str(model),
-                                                "model_config": str(config)})
+    node = graph.start_node("cloud_segmenter", params={"model": str(model),
+                                                       "model_config": str(config)})
     # a wall 20 m ahead and a pole 5 m ahead, in a driver-like layout with padding
     wy, wz = np.meshgrid(np.linspace(-5, 5, 200), np.linspace(-2, 1, 20))
     wall = np.column_stack([np.full(wy.size, 20.0), wy.ravel(), wz.ravel()])
@@ -234,6 +235,18 @@ def test_cloud_segmenter_node_adds_labels(graph, listener, tmp_path):
     np.testing.assert_allclose(cloud.xyz, xyz.astype(np.float32))
     np.testing.assert_array_equal(cloud.extra["ring"], points["ring"])
     assert out[0].header.frame_id == "lidar" and conv.stamp_to_seconds(out[0].header.stamp) == 7.0
+    # clouds it cannot read: one line each, and the node goes on segmenting
+    no_x = conv.array_to_pointcloud2(points[["y", "z", "intensity"]], conv.make_header("lidar", 8.0))
+    short = conv.array_to_pointcloud2(points, conv.make_header("lidar", 9.0))
+    short.data = bytes(short.data)[:100]
+    for bad, text in ((no_x, "ValueError: PointCloud2 has no x field"),
+                      (short, "ValueError: PointCloud2 data has 100 bytes, too few")):
+        pub.publish(bad)
+        node.wait_for_log(re.escape(text), 20)
+    assert node.running() and "Traceback" not in node.log()
+    count = len(out)
+    publish_until(listener.executor, pub, msg, lambda: len(out) > count, 40,
+                  "a labelled scan after the bad ones")
 
 
 def test_segmenter_without_model_exits_with_a_clear_error(graph):

@@ -51,6 +51,7 @@ class SegmenterNode(Node):
         depth = max(self.opts.queue_size, 2)
         self.publisher = self.create_publisher(self.msg_type, self.out_topic, qos.sensor(depth),
                                                qos_overriding_options=overrides)
+        self._last_failure = ""
         self.worker = LatestWorker(self._process, self._failed, self.opts.queue_size)
         self.create_subscription(self.msg_type, self.in_topic, self.worker.put, qos.sensor(depth),
                                  qos_overriding_options=overrides)
@@ -73,4 +74,10 @@ class SegmenterNode(Node):
         self.publisher.publish(self.segment_message(msg))
 
     def _failed(self, text: str) -> None:
-        self.get_logger().error(text, throttle_duration_sec=5.0)
+        """A new problem is always logged; the same one again at most every 5 s (a throttle
+        alone hid a second, different problem for 5 s)."""
+        if text != self._last_failure:
+            self._last_failure = text
+            self.get_logger().error(text)
+        else:
+            self.get_logger().error(text, throttle_duration_sec=5.0)
