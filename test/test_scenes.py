@@ -421,6 +421,8 @@ def test_catalogue_covers_every_layout_and_condition():
     assert by_name["highway-sparse"].variant == "sparse"
     assert by_name["junction-pose_noise"].map_file == "map_noisy_poses.ply"
     assert by_name["junction-large"].options().horizontal_step_deg < SIZES["full"].horizontal_step_deg
+    assert by_name["highway-large"].options().voxel < by_name["junction-large"].options().voxel
+    assert "--voxel 0.03" in by_name["highway-large"].command()
     for e in entries:
         e.options().validate()
         opts = e.options()
