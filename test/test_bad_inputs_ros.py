@@ -324,3 +324,24 @@ def test_nodes_refuse_bad_models_bags_and_parameters_at_start(tmp_path):
         assert not failures, "\n\n".join(failures)
     finally:
         graph.close()
+
+
+def test_map_builder_resets_when_clock_goes_back(builder):
+    """/clock going back by more than time_jump is a jump at once (a looping player, a
+    simulator reset), no stray counting needed."""
+    from rosgraph_msgs.msg import Clock
+
+    proc, feed = builder
+    resets = int(feed.diag()["resets"])
+    clock = feed.node.create_publisher(Clock, "/clock", qos.reliable(10))
+    spin_until(feed.executor, lambda: clock.get_subscription_count() > 0, 10,
+               "the map builder to subscribe to /clock")
+    clock.publish(Clock(clock=conv.seconds_to_stamp(feed.t)))
+    feed.spin(0.3)
+    feed.t -= 50.0
+    clock.publish(Clock(clock=conv.seconds_to_stamp(feed.t)))
+    feed.spin(0.3)
+    feed.step(2)
+    proc.wait_for_log(r"\[WARN\].*time jumped back 50\.0 s \(/clock went back", 10)
+    spin_until(feed.executor, lambda: feed.diag().get("resets") == str(resets + 1)
+               and feed.diag().get("map_scans") == "2", 15, "a new map after /clock went back")
