@@ -164,24 +164,33 @@ class Search:
                                  f"(1/{self.problem.stages[0].scale} resolution)")
         return self.nelder_mead(0, start.vector(), run)
 
+    def restart(self, stage: int, center: np.ndarray, loss: float, run: int, label: str
+                ) -> tuple[np.ndarray, float]:
+        """The paper's restarts: ``stage`` again from its own result while that still lowers
+        the loss by more than the stage's tolerance."""
+        st = self.problem.stages[stage]
+        for r in range(st.restarts):
+            self.counter.begin_stage(f"{label}, stage {stage + 1}/{len(self.problem.stages)}, "
+                                     f"restart {r + 1}")
+            moved, after = self.nelder_mead(stage, center, run)
+            improved = loss - after
+            if after < loss:
+                center, loss = moved, after
+            if improved <= st.fatol:
+                break
+        return center, loss
+
     def refine(self, center: np.ndarray, loss: float, run: int, label: str
                ) -> tuple[np.ndarray, float]:
-        """The stages after the first, then the paper's restarts of the last stage from its own
-        result while they still lower the loss."""
+        """From a coarse result: the first stage's restarts, then every later stage and its
+        restarts."""
         stages = self.problem.stages
-        last = len(stages) - 1
+        center, loss = self.restart(0, center, loss, run, label)
         for k in range(1, len(stages)):
             self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
                                      f"(1/{stages[k].scale} resolution)")
             center, loss = self.nelder_mead(k, center, run)
-        for r in range(self.problem.params.schedule.final_restarts):
-            self.counter.begin_stage(f"{label}, stage {last + 1}/{len(stages)}, restart {r + 1}")
-            moved, after = self.nelder_mead(last, center, run)
-            improved = loss - after
-            if after < loss:
-                center, loss = moved, after
-            if improved <= stages[last].fatol:
-                break
+            center, loss = self.restart(k, center, loss, run, label)
         return center, loss
 
 

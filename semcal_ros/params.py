@@ -112,6 +112,7 @@ class Stage:
     simplex: float  # initial simplex, as a fraction of the search bounds
     fatol: float  # loss change that ends the stage (the loss is a mean over valid pixels)
     max_evaluations: int  # cap of the stage
+    restarts: int  # the stage again from its own result while that lowers the loss
 
 
 @dataclass(frozen=True)
@@ -126,25 +127,29 @@ class ScheduleParams:
     simplex: tuple[float, ...] = (1.0, 0.1, 0.03)
     fatol: tuple[float, ...] = (1e-4, 1e-4, 1e-6)  # the paper's tolerances
     max_evaluations: tuple[int, ...] = (300, 150, 80)
+    # the paper's restarts from the previous result, per stage; the first stage's run only for
+    # the basins chosen for refinement (a coarse Nelder-Mead often stops before the bottom)
+    restarts: tuple[int, ...] = (1, 0, 1)
     xatol: float = 1e-3  # in units of the bounds
-    final_restarts: int = 1  # last stage again from its result while that lowers the loss
 
     def __post_init__(self) -> None:
         _finite(self)
         n = len(self.scales)
-        if n == 0 or any(len(t) != n for t in (self.simplex, self.fatol, self.max_evaluations)):
-            raise ValueError("schedule: scales, simplex, fatol and max_evaluations need one "
-                             "entry per stage each")
+        if n == 0 or any(len(t) != n for t in (self.simplex, self.fatol, self.max_evaluations,
+                                                self.restarts)):
+            raise ValueError("schedule: scales, simplex, fatol, max_evaluations and restarts "
+                             "need one entry per stage each")
         if min(self.scales) < 1 or min(self.simplex) <= 0 or min(self.fatol) < 0 \
-                or min(self.max_evaluations) < 1 or self.xatol <= 0 or self.final_restarts < 0:
+                or min(self.max_evaluations) < 1 or self.xatol <= 0 or min(self.restarts) < 0:
             raise ValueError("schedule: scales >= 1, simplex > 0, fatol >= 0, max_evaluations "
-                             ">= 1, xatol > 0, final_restarts >= 0")
+                             ">= 1, xatol > 0, restarts >= 0")
         if self.scales[-1] != 1:
             raise ValueError("schedule: the last stage must be at full resolution (scale 1)")
 
     def stages(self) -> tuple[Stage, ...]:
-        return tuple(Stage(int(s), float(x), float(f), int(m)) for s, x, f, m in
-                     zip(self.scales, self.simplex, self.fatol, self.max_evaluations))
+        return tuple(Stage(int(s), float(x), float(f), int(m), int(r)) for s, x, f, m, r in
+                     zip(self.scales, self.simplex, self.fatol, self.max_evaluations,
+                         self.restarts))
 
 
 @dataclass(frozen=True)
@@ -158,8 +163,8 @@ class VerificationParams:
     """
 
     starts: int = 6  # extra starts besides the initial guess
-    noise: float = 0.5  # uniform noise of the starts, as a fraction of the search bounds
-    refine_margin: float = 0.15  # coarse loss <= best * (1 + margin): worth refining
+    noise: float = 1.0  # uniform noise of the starts, as a fraction of the search bounds
+    refine_margin: float = 0.2  # coarse loss <= best * (1 + margin): worth refining
     refine_max: int = 3  # at most this many basins refined at full resolution
     merge_translation_m: float = 0.3  # coarse results closer than this and
     merge_rotation_deg: float = 0.3  # this are one basin

@@ -35,11 +35,12 @@ def problem(world, target):
 def test_schedule_is_a_tuple_of_stage_records():
     stages = ScheduleParams().stages()
     assert [s.scale for s in stages] == [4, 2, 1]
-    assert stages[-1] == Stage(1, 0.03, 1e-6, ScheduleParams().max_evaluations[-1])
+    assert stages[-1] == Stage(1, 0.03, 1e-6, ScheduleParams().max_evaluations[-1], 1)
     with pytest.raises(ValueError, match="one entry per stage"):
         ScheduleParams(scales=(4, 1), simplex=(1.0,))
     with pytest.raises(ValueError, match="last stage must be at full resolution"):
-        ScheduleParams(scales=(4, 2), simplex=(1, 1), fatol=(1, 1), max_evaluations=(1, 1))
+        ScheduleParams(scales=(4, 2), simplex=(1, 1), fatol=(1, 1), max_evaluations=(1, 1),
+                       restarts=(0, 0))
     with pytest.raises(ValueError, match="max_evaluations"):
         ScheduleParams(max_evaluations=(300, -1, 80))
 
@@ -126,7 +127,7 @@ def test_full_procedure_refines_few_basins_and_recovers_the_pose(problem):
     # full resolution is spent only on the refined runs
     full = sum(1 for run, stage, _ in res.history if stage == len(problem.stages) - 1)
     assert full <= len(refined) * params.schedule.max_evaluations[-1] * \
-        (1 + params.schedule.final_restarts) + len(refined)
+        (1 + params.schedule.restarts[-1]) + len(refined)
 
 
 def test_basins_merge_starts_that_end_together():
@@ -148,7 +149,8 @@ def test_degenerate_result_is_an_error_not_a_result(world, target):
                                verification=VerificationParams(starts=0),
                                schedule=ScheduleParams(scales=(4, 1), simplex=(1.0, 0.03),
                                                        fatol=(1e-4, 1e-6),
-                                                       max_evaluations=(10, 3)))
+                                                       max_evaluations=(10, 3),
+                                                       restarts=(0, 0)))
     with pytest.raises(ValueError, match="calibration failed: at the best pose found"):
         calibrate(world, target, camera(), INITIAL, params)
 

@@ -20,7 +20,7 @@ from semcal_ros.pose import Pose, rotation_error_deg, translation_error
 #: cheap enough for a unit test.
 CHEAP = replace(CalibrationParams(), schedule=ScheduleParams(
     scales=(4, 1), simplex=(1.0, 0.03), fatol=(1e-4, 1e-6), max_evaluations=(60, 5),
-    final_restarts=0), verification=VerificationParams(starts=0))
+    restarts=(0, 0)), verification=VerificationParams(starts=0))
 
 
 def test_summary_statistics_match_a_hand_computation():
@@ -90,7 +90,7 @@ def test_cli_writes_json_table_and_overlay(demo_scene: Path, tmp_path: Path, cap
     config.write_text("calibrator:\n  ros__parameters:\n    engine:\n      schedule:\n"
                       "        scales: [4, 1]\n        simplex: [1.0, 0.03]\n"
                       "        fatol: [0.0001, 0.000001]\n        max_evaluations: [12, 3]\n"
-                      "        final_restarts: 0\n      verification: {starts: 0}\n")
+                      "        restarts: [0, 0]\n      verification: {starts: 0}\n")
     out = tmp_path / "ev.json"
     code = main(["evaluate", str(demo_scene), "--runs", "2", "--keep", "1", "--quiet",
                  "--config", str(config), "--json", str(out), "--overlay",
