@@ -74,7 +74,7 @@ def main() -> int:
         proc = graph.start_node("calibrator", params={
             "map_file": str(scene / "map.ply"),
             "engine.schedule.max_evaluations": list(args.evaluations),
-            "engine.schedule.final_restarts": 0,
+            "engine.schedule.restarts": [0, 0, 0],
             "engine.verification.starts": args.verification_starts})
         ctx = graph.context()
         node = rclpy.create_node("bench_calibrator_memory", context=ctx)

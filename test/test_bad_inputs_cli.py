@@ -22,7 +22,7 @@ from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world, target_imag
 
 NEAR = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.4, -0.3, 0.2],
                               GROUND_TRUTH.body_rpy_deg() + [0.0, -1.0, 1.0])
-CHEAP = {"schedule": {"max_evaluations": [60, 30, 30], "final_restarts": 0},
+CHEAP = {"schedule": {"max_evaluations": [60, 30, 30], "restarts": [0, 0, 0]},
          "verification": {"starts": 0}}
 
 

@@ -29,7 +29,7 @@ pytestmark = pytest.mark.ros
 #: An engine schedule that converges roughly in ~80 evaluations (about 3 s on the demo map):
 #: these tests are about the node, not the optimum.
 CHEAP_ENGINE = {"engine.schedule.max_evaluations": [40, 20, 20],
-                "engine.schedule.final_restarts": 0, "engine.verification.starts": 0}
+                "engine.schedule.restarts": [0, 0, 0], "engine.verification.starts": 0}
 
 
 @dataclass
