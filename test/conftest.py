@@ -43,3 +43,26 @@ def scene_factory(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Pat
 def demo_scene(scene_factory: Callable[..., Path]) -> Path:
     """A small but realistic junction scene with everything: map, scans, images, bag."""
     return scene_factory("junction", 0, "ideal")
+
+
+#: Real data shared beside the checkout (../shared/data); tests that need it skip without it.
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+REAL_WEIGHTS = {
+    "espnetv2": SHARED_DATA / "models" / "espnetv2_cityscapes" / "espnetv2_s_2.0_city_1024x512.npz",
+    "espnet": SHARED_DATA / "models" / "espnet_cityscapes" / "espnet_p_2_q_8.npz",
+}
+
+
+@pytest.fixture(scope="session")
+def exported(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Path]]:
+    """Both real networks exported once per session: arch -> (model.onnx, config beside it)."""
+    from semcal_ros.segmentation.export.exporter import export_model
+
+    if not all(p.is_file() for p in REAL_WEIGHTS.values()):
+        pytest.skip(f"real segmentation weights not found under {SHARED_DATA}")
+    root = tmp_path_factory.mktemp("real-models")
+    out = {}
+    for arch, weights in REAL_WEIGHTS.items():
+        result = export_model(arch, weights, root / f"{arch}.onnx")
+        out[arch] = (result.model_path, result.config_path)
+    return out

@@ -114,13 +114,11 @@ def test_truth_labels_and_the_paper_settings_file(truth_scene):
     assert "semcal calibrate --config" in printed
 
 
-def test_scene_with_a_real_segmenter_reports_its_agreement(tmp_path, capsys):
-    model = tmp_path / "espnetv2.onnx"
-    assert main(["export-model", "espnetv2", "--weights", str(V2_WEIGHTS), "--out",
-                 str(model)]) == 0
+def test_scene_with_a_real_segmenter_reports_its_agreement(tmp_path, capsys, exported):
+    model, config = exported["espnetv2"]
     out = tmp_path / "scene"
     assert main(["kitti-scene", "--kitti", str(KITTI), "--scans", "0-1", "--out", str(out),
-                 "--model", str(model), "--model-config", str(model.with_suffix(".yaml")),
+                 "--model", str(model), "--model-config", str(config),
                  "--threads", "2"]) == 0
     printed = capsys.readouterr().out
     assert "labels from model" in printed and "all            18559   72.6%" in printed

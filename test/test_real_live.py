@@ -67,7 +67,7 @@ def graph(tmp_path):
     print(g.logs())  # shown by pytest only when the test failed
 
 
-def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path):
+def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path, exported):
     from sensor_msgs.msg import Image
 
     from semcal_ros.cli import main
@@ -76,17 +76,15 @@ def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path):
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
 
     t_begin = time.monotonic()
-    model = tmp_path / "espnetv2.onnx"
-    assert main(["export-model", "espnetv2", "--weights", str(V2_WEIGHTS), "--out",
-                 str(model)]) == 0
+    model, config = exported["espnetv2"]
     scene = tmp_path / "scene"
     assert main(["kitti-scene", "--kitti", str(KITTI), "--scans", "0-5", "--out", str(scene),
-                 "--model", str(model), "--model-config", str(model.with_suffix(".yaml")),
+                 "--model", str(model), "--model-config", str(config),
                  "--threads", "2"]) == 0
     scans = write_kitti_bag(scene, tmp_path / "bag")
 
     segmenter = graph.start_node("image_segmenter", params={
-        "model": str(model), "model_config": str(model.with_suffix(".yaml")),
+        "model": str(model), "model_config": str(config),
         "runner.threads": 2}, remap={"image": "/camera/image_raw", "labels": LIVE_LABELS})
     builder = graph.start_node("map_builder", params={
         "mapping.icp": False, "mapping.remove_dynamic": False, "mapping.d_max": 60.0,

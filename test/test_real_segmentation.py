@@ -21,7 +21,7 @@ from semcal_ros.cli import main
 from semcal_ros.io import files
 from semcal_ros.io.kitti import read_calib, read_labels, read_velodyne
 from semcal_ros.segmentation.agreement import label_agreement
-from semcal_ros.segmentation.export.exporter import export_model, model_config
+from semcal_ros.segmentation.export.exporter import model_config
 from semcal_ros.segmentation.export.graph import OPSET, GraphBuilder, T, adaptive_windows
 from semcal_ros.segmentation.image import ImageSegmenter, read_colour_image
 from semcal_ros.segmentation.model_config import load_model_config
@@ -119,17 +119,6 @@ def test_prelu_forms_are_exact_for_any_slopes(slopes):
 
 
 # ---------------------------------------------------------------- exported networks on real data
-
-@pytest.fixture(scope="session")
-def exported(tmp_path_factory) -> dict[str, tuple[Path, Path]]:
-    """Both networks exported once: arch -> (model.onnx, model config beside it)."""
-    root = tmp_path_factory.mktemp("real-models")
-    out = {}
-    for arch, weights in WEIGHTS.items():
-        result = export_model(arch, weights, root / f"{arch}.onnx")
-        out[arch] = (result.model_path, result.config_path)
-    return out
-
 
 @pytest.fixture(scope="session")
 def frame0() -> dict:
