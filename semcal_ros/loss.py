@@ -41,7 +41,13 @@ class LossParams:
             raise ValueError(f"loss.kind must be one of {', '.join(LOSS_KINDS)}, not "
                              f"'{self.kind}'")
         if not 0.0 <= self.crop_top < 1.0:
-            raise ValueError("crop_top must be in [0, 1)")
+            raise ValueError(f"loss.crop_top must be in [0, 1), got {self.crop_top}")
+        if not 0.0 <= self.min_coverage <= 1.0:
+            raise ValueError(f"loss.min_coverage must be in [0, 1], got {self.min_coverage}")
+        if not self.huber_delta > 0:
+            raise ValueError(f"loss.huber_delta must be > 0, got {self.huber_delta}")
+        if not self.degenerate_loss > 0:
+            raise ValueError(f"loss.degenerate_loss must be > 0, got {self.degenerate_loss}")
         if not 0.0 <= self.uncovered_cost <= 3.0:  # 3 = the largest colour distance
             raise ValueError(f"loss.uncovered_cost must be in [0, 3], got {self.uncovered_cost}")
 

@@ -36,14 +36,14 @@ class RenderParams:
 
     def __post_init__(self) -> None:
         _finite(self)
-        if self.splat_lambda < 0 or self.splat_scale <= 0 or self.radius_max < 1:
-            raise ValueError("render: splat_lambda >= 0, splat_scale > 0, radius_max >= 1")
-        if not 0 < self.near < self.far:
-            raise ValueError(f"render: need 0 < near < far, got {self.near}, {self.far}")
-        if self.lod_radius < 0 or self.crop_radius < 0 or self.depth_falloff < 0 \
-                or self.depth_falloff_coarse < 0 or not 0 < self.core_fraction <= 1:
-            raise ValueError("render: lod_radius, crop_radius, depth falloffs >= 0 and "
-                             "core_fraction in (0, 1]")
+        for name in ("splat_lambda", "lod_radius", "crop_radius", "depth_falloff",
+                     "depth_falloff_coarse"):
+            _check(f"render.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
+        _check("render.splat_scale", self.splat_scale, self.splat_scale > 0, "> 0")
+        _check("render.radius_max", self.radius_max, self.radius_max >= 1, ">= 1 px")
+        _check("render.core_fraction", self.core_fraction, 0 < self.core_fraction <= 1,
+               "in (0, 1]")
+        _check("render.near", self.near, 0 < self.near < self.far, f"in (0, far = {self.far})")
 
     def splat_lambda_for(self, point_spacing_m: float, focal_px: float) -> float:
         """The disc size: given, or one that closes the gaps between neighbouring points.
@@ -100,8 +100,9 @@ class SearchParams:
         if max(angles) > MAX_BOUND_DEG:
             raise ValueError(f"search angle bound {max(angles):g} deg is beyond "
                              f"{MAX_BOUND_DEG:g} deg (use search.yaw_search for an unknown yaw)")
-        if self.yaw_search and (not 0 < self.yaw_search_step_deg <= 90 or self.yaw_search_keep < 1):
-            raise ValueError("search: yaw_search_step_deg in (0, 90] and yaw_search_keep >= 1")
+        _check("search.yaw_search_step_deg", self.yaw_search_step_deg,
+               0 < self.yaw_search_step_deg <= 90, "in (0, 90]")
+        _check("search.yaw_search_keep", self.yaw_search_keep, self.yaw_search_keep >= 1, ">= 1")
 
 
 @dataclass(frozen=True)
@@ -139,10 +140,13 @@ class ScheduleParams:
                                                 self.restarts)):
             raise ValueError("schedule: scales, simplex, fatol, max_evaluations and restarts "
                              "need one entry per stage each")
-        if min(self.scales) < 1 or min(self.simplex) <= 0 or min(self.fatol) < 0 \
-                or min(self.max_evaluations) < 1 or self.xatol <= 0 or min(self.restarts) < 0:
-            raise ValueError("schedule: scales >= 1, simplex > 0, fatol >= 0, max_evaluations "
-                             ">= 1, xatol > 0, restarts >= 0")
+        _check("schedule.scales", self.scales, min(self.scales) >= 1, ">= 1")
+        _check("schedule.simplex", self.simplex, min(self.simplex) > 0, "> 0")
+        _check("schedule.fatol", self.fatol, min(self.fatol) >= 0, ">= 0")
+        _check("schedule.max_evaluations", self.max_evaluations, min(self.max_evaluations) >= 1,
+               ">= 1")
+        _check("schedule.restarts", self.restarts, min(self.restarts) >= 0, ">= 0")
+        _check("schedule.xatol", self.xatol, self.xatol > 0, "> 0")
         if self.scales[-1] != 1:
             raise ValueError("schedule: the last stage must be at full resolution (scale 1)")
 
@@ -173,10 +177,10 @@ class VerificationParams:
 
     def __post_init__(self) -> None:
         _finite(self)
-        if self.starts < 0 or self.noise < 0 or self.refine_margin < 0 or self.refine_max < 1 \
-                or self.merge_translation_m < 0 or self.merge_rotation_deg < 0 \
-                or self.loss_margin < 0 or self.loss_margin_abs < 0:
-            raise ValueError("verification: starts, noise, margins >= 0 and refine_max >= 1")
+        for name in ("starts", "noise", "refine_margin", "merge_translation_m",
+                     "merge_rotation_deg", "loss_margin", "loss_margin_abs"):
+            _check(f"verification.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
+        _check("verification.refine_max", self.refine_max, self.refine_max >= 1, ">= 1")
 
 
 @dataclass(frozen=True)
@@ -209,6 +213,13 @@ class CalibrationParams:
             return apply_flat(params, flat, strict=True)
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
+
+
+def _check(name: str, value: object, ok: bool, rule: str) -> None:
+    """One parameter rule, its failure named: ``schedule.max_evaluations must be >= 1, got ...``"""
+    if not ok:
+        shown = list(value) if isinstance(value, tuple) else value
+        raise ValueError(f"{name} must be {rule}, got {shown}")
 
 
 def _finite(params: object) -> None:
