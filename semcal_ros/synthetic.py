@@ -16,7 +16,7 @@ from semcal_ros.cloud import LabelledCloud
 from semcal_ros.labels import KITTI_ID, SKY
 from semcal_ros.params import RenderParams
 from semcal_ros.pose import Pose
-from semcal_ros.render import make_view, prepare_map
+from semcal_ros.render import prepare_map, view_for
 from semcal_ros.render.reference import render
 
 
@@ -110,14 +110,13 @@ def target_image(cam: CameraModel, pose: Pose = GROUND_TRUTH,
     (realistic: the loss minimum is only as sharp as the sampling allows). With ``world``: that
     cloud rendered as the calibrator renders it, so the loss is exactly zero at ``pose`` (a test
     of the optimiser alone)."""
-    if world is None:
-        cloud, rp = street_world(step=0.04, seed=99), RenderParams(splat_lambda=20.0, radius_max=6.0,
-                                                                   depth_falloff=0.3, core_fraction=1.0)
+    if world is None:  # a fixed, dense picture: every point drawn, nothing cropped
+        cloud = street_world(step=0.04, seed=99)
+        rp = RenderParams(splat_lambda=20.0, radius_max=6.0, depth_falloff=0.3, lod_radius=0.0,
+                          near=0.3, far=200.0, crop_radius=0.0)
     else:
         cloud, rp = world, RenderParams()
-    pmap = prepare_map(cloud, center=pose.translation)
-    splat_lambda = rp.splat_lambda_for(pmap.point_spacing(), cam.fx)
-    labels = render(pmap, make_view(cam, pose, pmap.origin, splat_lambda, rp.radius_max,
-                                    depth_falloff=rp.depth_falloff, core_fraction=rp.core_fraction))
+    pmap = prepare_map(cloud, center=pose.translation, radius=rp.crop_radius or None)
+    labels = render(pmap, view_for(cam, pose, pmap, rp))
     labels[labels == 255] = SKY
     return labels

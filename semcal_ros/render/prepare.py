@@ -51,9 +51,6 @@ class PreparedMap:
             gaps.append(dist[:, 1])
         return float(np.median(np.concatenate(gaps)))
 
-    def point_spacing(self) -> float:  # TODO(engine): callers move to .spacing
-        return self.spacing
-
 
 def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
                 center: np.ndarray | None = None, radius: float | None = None) -> PreparedMap:
