@@ -113,18 +113,19 @@ class Run:
     rotation_deg: float
     seconds: float
     evaluations: int
+    error: str = ""  # why the engine refused this start (then pose = start, loss = degenerate)
 
     def to_dict(self) -> dict:
         return {"start": pose_to_dict(self.start), "pose": pose_to_dict(self.pose),
                 "loss": self.loss, "translation_error_m": self.translation_m,
                 "rotation_error_deg": self.rotation_deg, "seconds": self.seconds,
-                "evaluations": self.evaluations}
+                "evaluations": self.evaluations, "error": self.error}
 
     @classmethod
     def from_dict(cls, d: dict) -> "Run":
         return cls(pose_from_dict(d["start"]), pose_from_dict(d["pose"]), float(d["loss"]),
                    float(d["translation_error_m"]), float(d["rotation_error_deg"]),
-                   float(d["seconds"]), int(d["evaluations"]))
+                   float(d["seconds"]), int(d["evaluations"]), str(d.get("error", "")))
 
 
 @dataclass
@@ -198,10 +199,15 @@ def evaluate_scene(folder: str | Path, loss: str = "l2",
     runs = []
     for i, start in enumerate(starts):
         t0 = time.perf_counter()
-        result = solve(problem, start, seed=protocol.seed + i)
-        run = Run(start, result.pose, float(result.loss), translation_error(result.pose, truth),
-                  rotation_error_deg(result.pose, truth), time.perf_counter() - t0,
-                  int(result.evaluations))
+        try:
+            result = solve(problem, start, seed=protocol.seed + i)
+            run = Run(start, result.pose, float(result.loss), translation_error(result.pose, truth),
+                      rotation_error_deg(result.pose, truth), time.perf_counter() - t0,
+                      int(result.evaluations))
+        except ValueError as exc:  # the engine refused the start or its result: a failed run
+            run = Run(start, start, run_params.loss.degenerate_loss,
+                      translation_error(start, truth), rotation_error_deg(start, truth),
+                      time.perf_counter() - t0, 0, str(exc))
         runs.append(run)
         if on_run is not None:
             on_run(i, run)

@@ -113,3 +113,14 @@ def test_cli_writes_json_table_and_overlay(demo_scene: Path, tmp_path: Path, cap
     assert "not a scene folder" in capsys.readouterr().err
     assert main(["evaluate", str(demo_scene), "--runs", "2", "--keep", "3"]) == 1
     assert "--keep must be between" in capsys.readouterr().err
+
+
+def test_a_refused_start_counts_as_a_failed_run(demo_scene: Path):
+    from semcal_ros.loss import LossParams
+
+    blind = replace(CHEAP, loss=LossParams(min_coverage=1.0))  # no view covers everything
+    res = evaluate_scene(demo_scene, "l2", ProtocolParams(runs=2, keep=1, seed=1), blind)
+    assert len(res.runs) == 2 and res.summary.success_rate == 0.0
+    for run in res.runs:
+        assert "no map point in view" in run.error and run.evaluations == 0
+        assert run.pose is run.start and run.loss == blind.loss.degenerate_loss
