@@ -169,9 +169,14 @@ def merge_registration(clouds: list[RegistrationCloud], corrections: list[np.nda
 
 
 def rotation_deg(matrix: np.ndarray) -> float:
-    """Rotation angle of a 4x4 (or 3x3) transform, degrees."""
-    cos = (np.trace(matrix[:3, :3]) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    """Rotation angle of a 4x4 (or 3x3) transform, degrees.
+
+    atan2 of the rotation's sine (from its skew part) and cosine (from its trace): arccos of the
+    trace alone loses precision near zero (1e-6 deg of noise on an identity)."""
+    r = np.asarray(matrix, float)[:3, :3]
+    sin = 0.5 * np.linalg.norm([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    cos = (np.trace(r) - 1.0) / 2.0
+    return float(np.degrees(np.arctan2(sin, cos)))
 
 
 def pairwise_icp(source: RegistrationCloud, target: RegistrationCloud,
