@@ -130,9 +130,11 @@ def _write_overlay(pattern: str, folder, result, params, mapping, map_file) -> N
     from semcal_ros.io.files import read_camera_info, read_rgb_image, write_rgb_image
     from semcal_ros.io.ply import read_ply
     from semcal_ros.overlay import render_overlay
+    from semcal_ros.problem import mapping_for
 
     cloud = read_ply(map_file or folder / "map.ply")
     camera = read_camera_info(folder / "camera_info.yaml")
     rgb = read_rgb_image(folder / "image.png")
     out = Path(pattern.replace("{scene}", folder.name).replace("{loss}", result.loss))
-    write_rgb_image(out, render_overlay(cloud, camera, result.best, rgb, mapping, params.render))
+    write_rgb_image(out, render_overlay(cloud, camera, result.best, rgb,
+                                                mapping_for(params, mapping), params.render))
