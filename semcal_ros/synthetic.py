@@ -100,6 +100,9 @@ def camera(width: int = 960, height: int = 600) -> CameraModel:
 
 
 GROUND_TRUTH = Pose.from_body_rpy_deg([-5.0, 10.0, 7.0], [0.0, 25.0, -55.0])
+#: A start about 2.6 m and 5 deg off the truth, inside the default search bounds.
+PERTURBED_START = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [1.8, -1.5, 1.2],
+                                         GROUND_TRUTH.body_rpy_deg() + [0.0, -3.5, 4.0])
 
 
 def target_image(cam: CameraModel, pose: Pose = GROUND_TRUTH,

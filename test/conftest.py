@@ -40,6 +40,22 @@ def scene_factory(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Pat
 
 
 @pytest.fixture(scope="session")
+def world():
+    """The small synthetic street (12 cm sampling) the engine tests calibrate against."""
+    from semcal_ros.synthetic import street_world
+
+    return street_world(step=0.12)
+
+
+@pytest.fixture(scope="session")
+def target(world):
+    """The street rendered as the calibrator renders it at the ground truth (loss 0 there)."""
+    from semcal_ros.synthetic import camera, target_image
+
+    return target_image(camera(), world=world)
+
+
+@pytest.fixture(scope="session")
 def demo_scene(scene_factory: Callable[..., Path]) -> Path:
     """A small but realistic junction scene with everything: map, scans, images, bag."""
     return scene_factory("junction", 0, "ideal")

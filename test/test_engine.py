@@ -10,20 +10,9 @@ from semcal_ros.params import (
 )
 from semcal_ros.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.problem import Problem
-from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world, target_image
+from semcal_ros.synthetic import GROUND_TRUTH, PERTURBED_START, camera
 
-INITIAL = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [1.8, -1.5, 1.2],
-                                 GROUND_TRUTH.body_rpy_deg() + [0.0, -3.5, 4.0])
-
-
-@pytest.fixture(scope="module")
-def world():
-    return street_world(step=0.12)
-
-
-@pytest.fixture(scope="module")
-def target(world):
-    return target_image(camera(), world=world)
+INITIAL = PERTURBED_START
 
 
 @pytest.fixture(scope="module")
