@@ -22,10 +22,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--offline", action="store_true",
                    help="no ROS: calibrate the scene's map and label image directly")
-    p.add_argument("--verification-starts", type=int, default=0, metavar="N",
-                   help="live demo: verification runs of the goal (default 0: one run, to "
-                        "stay within 60 s from bag start; each adds ~30 s on 2 busy cores; -1: the "
-                        "calibrator's configured number)")
+    p.add_argument("--verification-starts", type=int, default=-1, metavar="N",
+                   help="live demo: verification starts of the goal (default -1: the "
+                        "calibrator's configured number, the full default procedure; 0: one "
+                        "schedule)")
     p.set_defaults(func=run)
 
 

@@ -25,7 +25,7 @@ SCAN_TOPIC, ODOM_TOPIC = "/lidar/points", "/lidar/odom"
 class DemoOptions:
     out: Path
     seed: int = 0
-    verification_starts: int = 0  # -1: the calibrator's configured number (10)
+    verification_starts: int = -1  # -1: the calibrator's configured number (the full default)
     timeout: float = 600.0  # s for the whole live part
 
 
