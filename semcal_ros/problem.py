@@ -77,13 +77,6 @@ class Problem:
         if center.shape != (3,) or not np.all(np.isfinite(center)):
             raise ValueError(f"crop centre must be 3 finite numbers, got {center}")
         rp = self.params.render
-        if rp.crop_radius and len(map_cloud):
-            nearest = float(np.sqrt(np.min(np.sum((map_cloud.xyz - center) ** 2, axis=1))))
-            if nearest > rp.crop_radius:
-                raise ValueError(
-                    f"the initial position is {nearest:.0f} m from the nearest map point (the "
-                    f"map is used within {rp.crop_radius:g} m of it): check the initial pose "
-                    "and its frame")
         self.pmap: PreparedMap = prepare_map(map_cloud, self.mapping, center=center,
                                              radius=rp.crop_radius or None)
         self.target = self.mapping.map_image(target)

@@ -65,7 +65,13 @@ def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
     origin = np.asarray(center, dtype=np.float64) if center is not None else (
         xyz.mean(axis=0) if len(xyz) else np.zeros(3))
     if radius is not None and len(xyz):
-        near = np.einsum("ij,ij->i", xyz - origin, xyz - origin) <= radius * radius
+        d2 = np.einsum("ij,ij->i", xyz - origin, xyz - origin)
+        near = d2 <= radius * radius
+        if not near.any():
+            raise ValueError(
+                f"the initial position is {np.sqrt(d2.min()):.0f} m from the nearest map point "
+                f"(the map is used within {radius:g} m of it): check the initial pose and its "
+                "frame")
         xyz, aligned = xyz[near], aligned[near]
     if len(xyz) == 0:
         raise ValueError("map has no static labelled points (after removing dynamic classes"
