@@ -114,18 +114,20 @@ class Run:
     seconds: float
     evaluations: int
     error: str = ""  # why the engine refused this start (then pose = start, loss = degenerate)
+    quality: dict = field(default_factory=dict)  # the result's quality report (QualityReport.to_dict)
 
     def to_dict(self) -> dict:
         return {"start": pose_to_dict(self.start), "pose": pose_to_dict(self.pose),
                 "loss": self.loss, "translation_error_m": self.translation_m,
                 "rotation_error_deg": self.rotation_deg, "seconds": self.seconds,
-                "evaluations": self.evaluations, "error": self.error}
+                "evaluations": self.evaluations, "error": self.error, "quality": self.quality}
 
     @classmethod
     def from_dict(cls, d: dict) -> "Run":
         return cls(pose_from_dict(d["start"]), pose_from_dict(d["pose"]), float(d["loss"]),
                    float(d["translation_error_m"]), float(d["rotation_error_deg"]),
-                   float(d["seconds"]), int(d["evaluations"]), str(d.get("error", "")))
+                   float(d["seconds"]), int(d["evaluations"]), str(d.get("error", "")),
+                   dict(d.get("quality") or {}))
 
 
 @dataclass
@@ -203,7 +205,8 @@ def evaluate_scene(folder: str | Path, loss: str = "l2",
             result = solve(problem, start, seed=protocol.seed + i)
             run = Run(start, result.pose, float(result.loss), translation_error(result.pose, truth),
                       rotation_error_deg(result.pose, truth), time.perf_counter() - t0,
-                      int(result.evaluations))
+                      int(result.evaluations),
+                      quality=result.quality.to_dict() if result.quality else {})
         except ValueError as exc:  # the engine refused the start or its result: a failed run
             run = Run(start, start, run_params.loss.degenerate_loss,
                       translation_error(start, truth), rotation_error_deg(start, truth),

@@ -30,6 +30,7 @@ from semcal_ros.labels import LabelMapping
 from semcal_ros.params import CalibrationParams
 from semcal_ros.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.problem import Problem
+from semcal_ros.quality import QualityReport, assess
 
 
 class Cancelled(Exception):
@@ -69,6 +70,7 @@ class CalibrationResult:
     spread_translation_m: float = 0.0  # RMS distance of those starts' poses from the result
     spread_rotation_deg: float = 0.0
     coverage: float = 0.0  # share of the target's non-sky pixels the map covers at the result
+    quality: QualityReport | None = None  # how good, without ground truth (semcal_ros.quality)
 
     def to_dict(self) -> dict:
         """The fields a result pose YAML adds to the pose itself."""
@@ -85,6 +87,7 @@ class CalibrationResult:
                 "spread_translation_m": float(self.spread_translation_m),
                 "spread_rotation_deg": float(self.spread_rotation_deg),
             },
+            **({"quality": self.quality.to_dict()} if self.quality is not None else {}),
         }
 
 
@@ -100,12 +103,16 @@ class _Counter:
         self._best: tuple[float, Pose] | None = None
         self._last_report = 0.0
 
+    def check(self) -> None:
+        """Raise :class:`Cancelled` when the caller asked to stop."""
+        if self.should_stop is not None and self.should_stop():
+            raise Cancelled("calibration cancelled")
+
     def begin_stage(self, name: str) -> None:
         self.stage, self._best = name, None
 
     def record(self, run: int, stage: int, loss: float, pose: Pose) -> None:
-        if self.should_stop is not None and self.should_stop():
-            raise Cancelled("calibration cancelled")
+        self.check()
         self.evaluations += 1
         self.history.append((run, stage, loss))
         if self._best is None or loss < self._best[0]:
@@ -295,11 +302,14 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
     agree = [r for r in runs if r.basin == 0]
     dt = np.array([translation_error(r.pose, best_pose) for r in agree])
     dr = np.array([rotation_error_deg(r.pose, best_pose) for r in agree])
+    counter.begin_stage("quality report")
+    quality = assess(problem, best_pose, runs, on_probe=counter.check)
     return CalibrationResult(
-        pose=best_pose, loss=float(best_loss), evaluations=counter.evaluations,
+        pose=best_pose, loss=float(best_loss), evaluations=counter.evaluations + quality.evaluations,
         seconds=time.perf_counter() - t0, history=counter.history, runs=runs,
         accepted=len(agree), spread_translation_m=float(np.sqrt(np.mean(dt**2))),
         spread_rotation_deg=float(np.sqrt(np.mean(dr**2))), coverage=final.coverage,
+        quality=quality,
     )
 
 

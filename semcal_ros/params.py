@@ -15,6 +15,7 @@ from pathlib import Path
 
 from semcal_ros.config import apply_flat, load_node_params
 from semcal_ros.loss import LossParams
+from semcal_ros.quality import QualityParams
 
 #: Beyond these the search is no calibration any more (the loss has no basin that wide).
 MAX_BOUND_XYZ_M = 50.0
@@ -191,6 +192,7 @@ class CalibrationParams:
     search: SearchParams = field(default_factory=SearchParams)
     schedule: ScheduleParams = field(default_factory=ScheduleParams)
     verification: VerificationParams = field(default_factory=VerificationParams)
+    quality: QualityParams = field(default_factory=QualityParams)
 
     @classmethod
     def from_file(cls, path: str | Path | None, node: str = "calibrator",

@@ -54,12 +54,14 @@ class Problem:
 
     ``center`` is where the map is cropped (``params.render.crop_radius`` around it) and where
     its local origin lies: the initial camera position for one calibration, any fixed point near
-    the camera when many starts share one problem.
+    the camera when many starts share one problem. ``prepared`` is a map already prepared (by
+    :func:`~semcal_ros.render.prepare_map` with the same label mapping) to share between problems
+    instead of preparing ``map_cloud`` again; ``center`` is then ignored.
     """
 
     def __init__(self, map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel,
                  center: np.ndarray, params: CalibrationParams | None = None,
-                 mapping: LabelMapping | None = None) -> None:
+                 mapping: LabelMapping | None = None, prepared: PreparedMap | None = None) -> None:
         self.params = params or CalibrationParams()
         self.mapping = mapping_for(self.params, mapping)
         self.camera = camera
@@ -77,8 +79,10 @@ class Problem:
         if center.shape != (3,) or not np.all(np.isfinite(center)):
             raise ValueError(f"crop centre must be 3 finite numbers, got {center}")
         rp = self.params.render
-        self.pmap: PreparedMap = prepare_map(map_cloud, self.mapping, center=center,
-                                             radius=rp.crop_radius or None)
+        # a map prepared once serves every camera and goal on it (multi-camera calibrator, drift
+        # watch); it must have been prepared with this problem's label mapping
+        self.pmap: PreparedMap = prepared if prepared is not None else prepare_map(
+            map_cloud, self.mapping, center=center, radius=rp.crop_radius or None)
         self.target = self.mapping.map_image(target)
         if np.all(self.target == INVALID):
             raise ValueError("label image has no pixel of a class the map can match")

@@ -112,7 +112,9 @@ def test_full_procedure_refines_few_basins_and_recovers_the_pose(problem):
     refined = [r for r in res.runs if r.refined]
     assert 1 <= len(refined) <= params.verification.refine_max
     assert res.accepted == sum(r.basin == 0 for r in res.runs) >= 1
-    assert res.evaluations == len(res.history)
+    # every render counts: the search's (history) and the quality report's
+    assert res.evaluations == len(res.history) + res.quality.evaluations
+    assert res.quality.verdict == "good", res.quality.summary()
     # full resolution is spent only on the refined runs
     full = sum(1 for run, stage, _ in res.history if stage == len(problem.stages) - 1)
     assert full <= len(refined) * params.schedule.max_evaluations[-1] * \
