@@ -84,19 +84,29 @@ def input_problems(camera_frame_id: str, inputs: Inputs) -> list[str]:
         problems.append(f"no map received yet (topic '{inputs.map_topic}')")
     elif len(inputs.map_cloud) == 0:
         problems.append(f"the map on '{inputs.map_topic}' is empty")
-    if inputs.labels is None:
-        problems.append(f"no label image received yet (topic '{inputs.labels_topic}')")
-    if inputs.camera is None:
-        problems.append(f"no CameraInfo received yet (topic '{inputs.camera_info_topic}')")
-    if inputs.labels is not None and inputs.camera is not None:
-        h, w = inputs.labels.shape[:2]
-        if (w, h) != (inputs.camera.width, inputs.camera.height):
+    return problems + camera_problems(camera_frame_id, inputs.labels, inputs.labels_frame,
+                                      inputs.camera, inputs.labels_topic,
+                                      inputs.camera_info_topic)
+
+
+def camera_problems(camera_frame_id: str, labels: np.ndarray | None, labels_frame: str,
+                    camera: CameraModel | None, labels_topic: str = "camera/labels",
+                    camera_info_topic: str = "camera/camera_info") -> list[str]:
+    """Missing or inconsistent label image / CameraInfo of one camera (``camera_frame_id``
+    empty: any frame)."""
+    problems = []
+    if labels is None:
+        problems.append(f"no label image received yet (topic '{labels_topic}')")
+    if camera is None:
+        problems.append(f"no CameraInfo received yet (topic '{camera_info_topic}')")
+    if labels is not None and camera is not None:
+        h, w = labels.shape[:2]
+        if (w, h) != (camera.width, camera.height):
             problems.append(f"label image is {w}x{h} but CameraInfo says "
-                            f"{inputs.camera.width}x{inputs.camera.height}")
+                            f"{camera.width}x{camera.height}")
     if camera_frame_id:
-        for what, frame in (("CameraInfo", inputs.camera.frame_id if inputs.camera else None),
-                            ("label image", inputs.labels_frame if inputs.labels is not None
-                             else None)):
+        for what, frame in (("CameraInfo", camera.frame_id if camera else None),
+                            ("label image", labels_frame if labels is not None else None)):
             if frame is not None and frame != camera_frame_id:
                 problems.append(f"goal asks for camera '{camera_frame_id}' but the {what} is "
                                 f"from '{frame}'")
