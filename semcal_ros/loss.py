@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numba
 import numpy as np
 
@@ -35,6 +36,11 @@ class LossParams:
     # wins over one that also renders the (imperfect) buildings and trees. A cost makes looking
     # away cost something too.
     uncovered_cost: float = 0.0
+    # px (full resolution): a rendered class within this distance of where the target has that
+    # class costs in proportion to the distance (a truncated distance transform of the target per
+    # class); 0 = every mismatch costs in full (the paper). Boundaries a network drew a few pixels
+    # off then cost little, and the loss near the optimum becomes quadratic instead of V-shaped.
+    boundary_band_px: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -50,6 +56,9 @@ class LossParams:
             raise ValueError(f"loss.degenerate_loss must be > 0, got {self.degenerate_loss}")
         if not 0.0 <= self.uncovered_cost <= 3.0:  # 3 = the largest colour distance
             raise ValueError(f"loss.uncovered_cost must be in [0, 3], got {self.uncovered_cost}")
+        if not 0.0 <= self.boundary_band_px <= 50.0:
+            raise ValueError(f"loss.boundary_band_px must be in [0, 50], got "
+                             f"{self.boundary_band_px}")
 
 
 def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
@@ -63,9 +72,30 @@ def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
     return np.sum(huber, axis=2)
 
 
+N_CLASSES = 19  # aligned classes are Cityscapes trainIds 0..18
+
+
+def class_distances(target: np.ndarray, band_px: float) -> np.ndarray:
+    """uint8[N_CLASSES, H*W]: per class, the distance from each pixel to the nearest target pixel
+    of that class, as a share of ``band_px`` (255 = the band or farther). One OpenCV distance
+    transform per class present; absent classes are 255 everywhere."""
+    h, w = target.shape
+    out = np.full((N_CLASSES, h * w), 255, np.uint8)
+    for c in np.unique(target):
+        if c >= N_CLASSES:
+            continue
+        dist = cv2.distanceTransform((target != c).astype(np.uint8), cv2.DIST_L2, 5)
+        out[c] = np.minimum(dist.ravel() * (255.0 / band_px), 255.0).astype(np.uint8)
+    return out
+
+
 def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
-                   params: LossParams) -> tuple[float, float]:
-    """(loss, coverage) in numpy; ``target`` holds aligned classes (INVALID = ignore)."""
+                   params: LossParams, band_px: float | None = None) -> tuple[float, float]:
+    """(loss, coverage) in numpy; ``target`` holds aligned classes (INVALID = ignore).
+    ``band_px``: the boundary band at this image's resolution (default ``params``')."""
+    band = params.boundary_band_px if band_px is None else band_px
+    if band > 0:
+        table_px = _banded(rendered, target, table, band)
     top = int(round(params.crop_top * target.shape[0]))
     r = rendered[top:].ravel()
     t = target[top:].ravel()
@@ -77,13 +107,56 @@ def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
     uncovered = int((scene & empty).sum())
     coverage = float(n_scene - uncovered) / n_scene if n_scene else 0.0
     n_valid = int(valid.sum())
-    total = float(table[r_eff[valid], t[valid]].sum())
+    if band > 0:
+        total = float(table_px[top * target.shape[1]:][valid].sum())
+    else:
+        total = float(table[r_eff[valid], t[valid]].sum())
     if params.uncovered_cost > 0:
         n_valid += uncovered
         total += params.uncovered_cost * uncovered
     if n_valid == 0 or coverage < params.min_coverage:
         return params.degenerate_loss, coverage
     return total / n_valid, coverage
+
+
+def _banded(rendered: np.ndarray, target: np.ndarray, table: np.ndarray, band: float
+            ) -> np.ndarray:
+    """Per-pixel cost with the boundary band (numpy; the reference for the kernel)."""
+    dist = class_distances(target, band)
+    r = rendered.ravel().astype(np.int64)
+    t = target.ravel().astype(np.int64)
+    r_eff = np.where(r == INVALID, SKY, r)
+    cost = np.zeros(r.shape, np.float64)
+    ok = t != INVALID
+    cost[ok] = table[r_eff[ok], t[ok]]
+    near = ok & (r_eff < N_CLASSES)
+    weight = np.ones(r.shape)
+    weight[near] = dist[r_eff[near], np.nonzero(near)[0]] / 255.0
+    return cost * weight
+
+
+@numba.njit(cache=True, nogil=True)
+def _loss_kernel_banded(rendered, target, table, start, dist):
+    total = 0.0
+    n_valid = 0
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r == INVALID:
+                continue
+            n_covered += 1
+        elif r == INVALID:
+            r = SKY
+        if r != t:
+            total += table[r, t] * dist[r, p] * (1.0 / 255.0)
+        n_valid += 1
+    return total, n_valid, n_scene, n_covered
 
 
 @numba.njit(cache=True, nogil=True)
@@ -110,14 +183,18 @@ def _loss_kernel(rendered, target, table, start):
 
 
 class LabelLoss:
-    """The loss against one target image, ready to be evaluated many times."""
+    """The loss against one target image, ready to be evaluated many times. ``scale`` is the
+    image's downsampling factor: the boundary band is given in full-resolution pixels."""
 
-    def __init__(self, target_aligned: np.ndarray, params: LossParams) -> None:
+    def __init__(self, target_aligned: np.ndarray, params: LossParams, scale: int = 1) -> None:
         self.params = params
         self.shape = target_aligned.shape
         self.target = np.ascontiguousarray(target_aligned, dtype=np.uint8).ravel()
         self.table = pair_table(params.kind, params.huber_delta)
         self.start = int(round(params.crop_top * self.shape[0])) * self.shape[1]
+        self.band_px = params.boundary_band_px / scale
+        self.dist = (class_distances(target_aligned, self.band_px) if self.band_px > 0
+                     else None)
 
     def __call__(self, rendered: np.ndarray) -> float:
         return self.evaluate(rendered)[0]
@@ -126,8 +203,13 @@ class LabelLoss:
         """(loss, coverage of the target's non-sky pixels by rendered points)."""
         if rendered.shape != self.shape:
             raise ValueError(f"rendered image {rendered.shape} != target {self.shape}")
-        total, n_valid, n_scene, n_covered = _loss_kernel(
-            np.ascontiguousarray(rendered).ravel(), self.target, self.table, self.start)
+        flat = np.ascontiguousarray(rendered).ravel()
+        if self.dist is not None:
+            total, n_valid, n_scene, n_covered = _loss_kernel_banded(
+                flat, self.target, self.table, self.start, self.dist)
+        else:
+            total, n_valid, n_scene, n_covered = _loss_kernel(
+                flat, self.target, self.table, self.start)
         coverage = n_covered / n_scene if n_scene else 0.0
         if self.params.uncovered_cost > 0:
             n_valid += n_scene - n_covered

@@ -1,6 +1,9 @@
-"""Pictures people look at instead of numbers: the map over the image, the loss curve."""
+"""Pictures people look at instead of numbers: the map over the image with the verdict, the loss
+curve."""
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -12,6 +15,12 @@ from semcal_ros.params import RenderParams
 from semcal_ros.pose import Pose
 from semcal_ros.render import prepare_map, view_for
 from semcal_ros.render.fast import render
+
+if TYPE_CHECKING:  # pragma: no cover
+    from semcal_ros.quality import QualityReport
+
+#: Banner colour (RGB) per verdict: traffic-light colours, readable at a glance.
+VERDICT_COLOURS = {"good": (40, 160, 60), "inconclusive": (230, 160, 20), "failed": (210, 40, 40)}
 
 
 def render_map_labels(map_cloud: LabelledCloud, camera: CameraModel, pose: Pose,
@@ -50,6 +59,30 @@ def render_overlay(map_cloud: LabelledCloud, camera: CameraModel, pose: Pose, rg
     if rgb.ndim == 2:
         rgb = np.repeat(rgb[:, :, None], 3, axis=2)
     return blend_labels(rgb, render_map_labels(map_cloud, camera, pose, mapping, params))
+
+
+def annotate_quality(rgb: np.ndarray, report: "QualityReport") -> np.ndarray:
+    """The overlay with the quality verdict drawn on it: a banner in the verdict's colour with the
+    verdict, its reason, agreement, coverage and the per-axis uncertainty, so a picture passed
+    around on its own still says whether to trust it."""
+    out = np.ascontiguousarray(rgb.copy())
+    h, w = out.shape[:2]
+    scale = max(0.4, min(1.0, w / 1600.0))
+    line = int(26 * scale) + 4
+    ut, ur = report.uncertainty_translation_m, report.uncertainty_rpy_deg
+    lines = [
+        f"{report.verdict.upper()}: {report.reason}",
+        f"agreement {report.agreement * 100:.0f} %   coverage {report.coverage * 100:.0f} %",
+        "uncertainty x/y/z " + "/".join(f"{v * 100:.1f}" for v in ut) + " cm   roll/pitch/yaw "
+        + "/".join(f"{v:.2f}" for v in ur) + " deg",
+    ]
+    band = min(h, line * len(lines) + 8)
+    colour = np.array(VERDICT_COLOURS.get(report.verdict, (90, 90, 90)), np.float32)
+    out[:band] = (0.35 * out[:band].astype(np.float32) + 0.65 * colour).astype(np.uint8)
+    for k, text in enumerate(lines):
+        cv2.putText(out, text, (6, 4 + line * (k + 1) - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.6 * scale,
+                    (255, 255, 255), max(1, int(2 * scale)), cv2.LINE_AA)
+    return out
 
 
 def loss_curve(history: list[tuple[int, int, float]], width: int = 800, height: int = 400) -> np.ndarray:

@@ -97,7 +97,7 @@ class Problem:
         cam = setup.camera
         off = scale // 2  # the sample nearest the centre of each scale x scale block
         target = self.target[off::scale, off::scale][:cam.height, :cam.width]
-        return Level(scale, setup, LabelLoss(np.ascontiguousarray(target), self.params.loss))
+        return Level(scale, setup, LabelLoss(np.ascontiguousarray(target), self.params.loss, scale))
 
     def level(self, stage: int = -1) -> Level:
         return self._levels[self.stages[stage].scale]

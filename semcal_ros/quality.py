@@ -46,8 +46,8 @@ class QualityParams:
 
     rise: float = 0.05  # relative loss rise that bounds an axis's uncertainty
     rise_abs: float = 1e-4  # plus this absolute rise (a loss near 0 still has a noise floor)
-    step_m: float = 0.005  # first probe along a translation axis; doubled until the loss rises
-    step_deg: float = 0.01  # first probe about a rotation axis
+    step_m: float = 0.01  # first probe along a translation axis; doubled until the loss rises
+    step_deg: float = 0.02  # first probe about a rotation axis
     bisections: int = 2  # refinements of each axis's bracket
     stage: int = -1  # schedule stage whose resolution the probes use (-1: full resolution)
     max_translation_m: float = 0.05  # an axis looser than this is unconstrained: inconclusive

@@ -108,3 +108,27 @@ def test_fast_matches_reference_on_random_images():
 def test_bad_loss_kind():
     with pytest.raises(ValueError, match="loss.kind must be one of l2, huber"):
         LossParams(kind="l1")
+
+
+def test_boundary_band_discounts_mismatches_near_the_class_and_matches_the_reference():
+    target = np.full((20, 40), ROAD, np.uint8)
+    target[:10, :20] = BUILDING
+    target[:3] = SKY
+    band = LossParams(boundary_band_px=4.0)
+    # building drawn 2 px too far right: the wrong pixels lie within 2 px of the target's building
+    shifted = target.copy()
+    shifted[3:10, 20:22] = BUILDING
+    # building drawn far from any building: full cost
+    far = target.copy()
+    far[15:17, 30:32] = BUILDING
+    paper, banded = LabelLoss(target, LossParams()), LabelLoss(target, band)
+    assert banded(target) == 0.0
+    assert banded(shifted) < 0.5 * paper(shifted)  # near the boundary: discounted
+    assert banded(far) == pytest.approx(paper(far))  # 4+ px away: the full colour distance
+    for rendered in (shifted, far):
+        ref, _ = loss_reference(rendered, target, banded.table, band)
+        assert ref == pytest.approx(banded(rendered))
+    # the band is in full-resolution pixels: at scale 2 it is 2 px of the downsampled image
+    assert LabelLoss(target[::2, ::2], band, scale=2).band_px == 2.0
+    with pytest.raises(ValueError, match="loss.boundary_band_px"):
+        LossParams(boundary_band_px=-1.0)

@@ -59,7 +59,7 @@ def _run(args: argparse.Namespace) -> int:
     from semcal_ros.optimize import Progress, calibrate
     from semcal_ros.params import CalibrationParams
     from semcal_ros.problem import mapping_for
-    from semcal_ros.overlay import loss_curve, render_overlay
+    from semcal_ros.overlay import annotate_quality, loss_curve, render_overlay
 
     # everything checkable is checked before the work starts (the same checks as the action)
     params = CalibrationParams.from_file(args.config)
@@ -116,11 +116,16 @@ def _run(args: argparse.Namespace) -> int:
     print(f"loss {result.loss:.6f}, {result.evaluations} evaluations, {result.seconds:.1f} s; "
           f"{result.accepted}/{len(result.runs)} runs accepted, spread "
           f"{result.spread_translation_m * 100:.1f} cm / {result.spread_rotation_deg:.3f} deg")
+    if result.quality is not None:
+        print(f"quality {result.quality.summary()}")
     print(f"result written to {args.output}")
     if args.overlay:
         background = rgb if rgb is not None else colorize(labels)
-        files.write_rgb_image(args.overlay, render_overlay(
-            cloud, camera, result.pose, background, mapping_for(params, mapping), params.render))
+        picture = render_overlay(cloud, camera, result.pose, background,
+                                 mapping_for(params, mapping), params.render)
+        if result.quality is not None:
+            picture = annotate_quality(picture, result.quality)
+        files.write_rgb_image(args.overlay, picture)
         print(f"overlay written to {args.overlay}")
     if args.loss_curve:
         files.write_rgb_image(args.loss_curve, loss_curve(result.history))
