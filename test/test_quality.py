@@ -1,0 +1,142 @@
+"""The quality report: agreement, per-axis uncertainty and the verdict, on scenes where the right
+answer is known; and the network-like label noise the report and the loss are measured with."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from semcal_ros.cloud import LabelledCloud
+from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
+from semcal_ros.io.ply import read_ply
+from semcal_ros.labels import CITYSCAPES_ID, INVALID, KITTI_ID
+from semcal_ros.optimize import calibrate
+from semcal_ros.params import CalibrationParams, ScheduleParams, VerificationParams
+from semcal_ros.pose import Pose
+from semcal_ros.problem import Problem
+from semcal_ros.quality import QualityParams, QualityReport, assess, label_agreement
+from semcal_ros.scenes.labelnoise import NOISE_MODELS, add_network_noise
+from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world, target_image
+
+ROAD, BUILDING = CITYSCAPES_ID["road"], CITYSCAPES_ID["building"]
+TINY = dict(scans=6, horizontal_step_deg=1.0, write_bag=False)
+#: One coarse stage and a short full-resolution one: the verdict, not the search, is under test.
+CHEAP = CalibrationParams(schedule=ScheduleParams(
+    scales=(4, 1), simplex=(1.0, 0.03), fatol=(1e-4, 1e-6), max_evaluations=(120, 40),
+    restarts=(0, 0)), verification=VerificationParams(starts=2))
+
+
+def _scene(folder: Path) -> tuple[LabelledCloud, np.ndarray, object, Pose]:
+    return (read_ply(folder / "map.ply"), read_label_image(folder / "labels.png"),
+            read_camera_info(folder / "camera_info.yaml"), read_pose(folder / "ground_truth.yaml"))
+
+
+def test_label_agreement_counts_pixels_both_sides_labelled():
+    target = np.full((4, 5), ROAD, np.uint8)
+    target[0] = BUILDING
+    rendered = target.copy()
+    rendered[0, :2] = ROAD  # 2 of 5 building pixels wrong
+    rendered[3] = INVALID  # nothing drawn: not counted
+    overall, per_class = label_agreement(rendered, target)
+    assert overall == pytest.approx(13 / 15)
+    assert per_class == {"building": pytest.approx(3 / 5), "road": pytest.approx(1.0)}
+    assert label_agreement(np.full_like(target, INVALID), target) == (0.0, {})
+
+
+def test_good_on_the_ideal_junction_with_every_axis_pinned_down(demo_scene):
+    cloud, labels, cam, truth = _scene(demo_scene)
+    start = Pose.from_body_rpy_deg(truth.translation + [0.6, -0.5, 0.3],
+                                   truth.body_rpy_deg() + [0.0, 1.0, -1.0])
+    res = calibrate(cloud, labels, cam, start, CHEAP, seed=0)
+    q = res.quality
+    assert q.verdict == "good", q.summary()
+    assert q.agreement > 0.9 and q.coverage > 0.5
+    qp = CHEAP.quality
+    assert max(q.uncertainty_translation_m) <= qp.max_translation_m
+    assert max(q.uncertainty_rpy_deg[1:]) <= qp.max_rotation_deg
+    # the report travels with the result: the YAML group and the one-line summary
+    d = res.to_dict()["quality"]
+    assert d["verdict"] == "good" and len(d["uncertainty_translation_m"]) == 3
+    assert "GOOD" in q.summary()
+
+
+def test_inconclusive_on_a_flat_road_naming_the_axis_along_it():
+    """A map of only road and lane markings (one class once aligned): moving along the road
+    changes nothing the camera sees, so x (the road's direction) is named as unconstrained."""
+    world = street_world(step=0.12)
+    keep = np.isin(world.label, [KITTI_ID["road"], KITTI_ID["lane-marking"]])
+    road = LabelledCloud(world.xyz[keep], world.label[keep])
+    cam = camera()
+    dense = street_world(step=0.06, seed=5)  # another sampling of the same road: no exact match
+    dense = dense.select(np.isin(dense.label, [KITTI_ID["road"], KITTI_ID["lane-marking"]]))
+    target = target_image(cam, world=dense)
+    problem = Problem(road, target, cam, GROUND_TRUTH.translation)
+    q = assess(problem, GROUND_TRUTH)
+    assert q.verdict == "inconclusive", q.summary()
+    assert "x" in q.unconstrained and "x" in q.reason
+    assert q.uncertainty_translation_m[0] > problem.params.quality.max_translation_m
+
+
+def test_failed_when_the_map_is_of_another_scene(scene_factory):
+    junction = scene_factory("junction", 3, "ideal", **TINY)
+    arterial = scene_factory("arterial", 1, "ideal", **TINY)
+    _, labels, cam, truth = _scene(junction)
+    other_map = read_ply(arterial / "map.ply")
+    q = assess(Problem(other_map, labels, cam, truth.translation), truth)
+    assert q.verdict == "failed", q.summary()
+    assert "agree" in q.reason
+
+
+def test_failed_when_the_pose_is_20_m_off(scene_factory):
+    junction = scene_factory("junction", 3, "ideal", **TINY)
+    cloud, labels, cam, truth = _scene(junction)
+    problem = Problem(cloud, labels, cam, truth.translation)
+    off = Pose.from_body_rpy_deg(truth.translation + [14.0, 14.0, 0.0], truth.body_rpy_deg())
+    q = assess(problem, off)
+    assert q.verdict == "failed", q.summary()
+    assert assess(problem, truth).verdict != "failed"
+
+
+def test_runs_that_disagree_fail_the_result():
+    """A refined run in another basin with a loss as low as the result's: the data cannot decide."""
+    from semcal_ros.optimize import RunResult
+
+    world = street_world(step=0.12)
+    cam = camera()
+    problem = Problem(world, target_image(cam, world=world), cam, GROUND_TRUTH.translation)
+    far = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [1.0, 0, 0], GROUND_TRUTH.body_rpy_deg())
+    runs = [RunResult(GROUND_TRUTH, GROUND_TRUTH, 0.01, 10, 0.01, True, 0),
+            RunResult(far, far, 0.0101, 10, 0.01, True, 1)]
+    q = assess(problem, GROUND_TRUTH, runs)
+    assert q.verdict == "failed" and "runs disagree" in q.reason
+    runs[1] = RunResult(far, far, 0.05, 10, 0.05, True, 1)  # clearly worse: no rival
+    assert assess(problem, GROUND_TRUTH, runs).verdict == "good"
+
+
+def test_quality_parameters_are_checked_by_name():
+    with pytest.raises(ValueError, match="quality.max_translation_m"):
+        QualityParams(max_translation_m=0.0)
+    with pytest.raises(ValueError, match="quality.rise"):
+        QualityParams(rise=float("nan"))
+    assert isinstance(CalibrationParams().quality, QualityParams)
+    assert QualityReport.__dataclass_fields__["verdict"]
+
+
+@pytest.mark.parametrize("model", sorted(NOISE_MODELS))
+def test_network_noise_is_structured_and_seeded(model):
+    world = street_world(step=0.12)
+    labels = target_image(camera(), world=world)
+    a = add_network_noise(labels, np.random.default_rng(3), NOISE_MODELS[model])
+    b = add_network_noise(labels, np.random.default_rng(3), NOISE_MODELS[model])
+    np.testing.assert_array_equal(a, b)
+    changed = a != labels
+    assert 0.005 < changed.mean() < 0.3
+    # errors sit at class boundaries and in confused regions, not spread like salt and pepper
+    from scipy.ndimage import binary_opening
+    assert binary_opening(changed).sum() > 0.5 * changed.sum()
+    assert set(np.unique(a)) <= set(np.unique(labels)) | {CITYSCAPES_ID[n] for n in
+                                                          ("terrain", "road", "building",
+                                                           "vegetation")}
