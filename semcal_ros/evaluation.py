@@ -171,9 +171,13 @@ def evaluate_scene(folder: str | Path, loss: str = "l2",
                    params: CalibrationParams | None = None, mapping: LabelMapping | None = None,
                    map_file: str | Path | None = None,
                    on_run: Callable[[int, Run], None] | None = None,
-                   single: bool = False) -> SceneEvaluation:
+                   single: bool = False, label_noise: str = "",
+                   noise_seed: int = 1) -> SceneEvaluation:
     """Run the protocol on one scene folder (map.ply, labels.png, camera_info.yaml,
     ground_truth.yaml); ``map_file`` replaces map.ply (e.g. a map built from noisy poses).
+    ``label_noise`` names a model of :data:`semcal_ros.scenes.labelnoise.NOISE_MODELS` (or
+    ``legacy``, the ``noisy_labels`` variant's) applied to labels.png with ``noise_seed``: the same
+    scene with a network's kind of label errors.
 
     Each start runs the engine's full default procedure (verification starts included, seeded
     per start), as a user calling ``semcal calibrate`` would; ``single`` runs one schedule per
@@ -186,6 +190,10 @@ def evaluate_scene(folder: str | Path, loss: str = "l2",
         raise FileNotFoundError(f"scene folder not found: {folder}")
     cloud = read_ply(Path(map_file) if map_file else folder / "map.ply")
     target = read_label_image(folder / "labels.png")
+    if label_noise:
+        from semcal_ros.scenes.labelnoise import noisy_labels
+
+        target = noisy_labels(target, label_noise, noise_seed)
     camera = read_camera_info(folder / "camera_info.yaml")
     truth = read_pose(folder / "ground_truth.yaml")
     run_params = replace(params or CalibrationParams(),
@@ -218,7 +226,8 @@ def evaluate_scene(folder: str | Path, loss: str = "l2",
                         np.array([r.rotation_deg for r in runs]), np.array([r.seconds for r in runs]),
                         protocol.keep, protocol.success_m, protocol.success_deg)
     best = min(runs, key=lambda r: r.loss).pose
-    return SceneEvaluation(scene_name(folder), str(folder), loss, summary, runs, best,
+    name = scene_name(folder) + (f", {label_noise} label noise" if label_noise else "")
+    return SceneEvaluation(name, str(folder), loss, summary, runs, best,
                            prepare_seconds)
 
 
@@ -239,6 +248,18 @@ def _cell(t_cm: float, r_deg: float) -> str:
     return f"{t_cm:.1f} cm, {r_deg:.2f} deg"
 
 
+def _verdicts(runs: list[Run]) -> str:
+    """Share of runs the quality report called good, and in brackets the share of those that
+    really were within the protocol's success bounds (5 cm / 0.1 deg)."""
+    rated = [r for r in runs if r.quality]
+    if not rated:
+        return ""
+    good = [r for r in rated if r.quality.get("verdict") == "good"]
+    right = sum(r.translation_m < 0.05 and r.rotation_deg < 0.1 for r in good)
+    return (f"{len(good) / len(rated) * 100:.0f} %"
+            + (f" ({right / len(good) * 100:.0f} %)" if good else ""))
+
+
 def format_table(results: list[SceneEvaluation], paper: bool = False) -> str:
     """A Markdown table shaped like the paper's Table I: one row per scene, a column per loss
     (mean of the kept lowest-loss runs), then all-run means, success rates and seconds per run."""
@@ -249,7 +270,7 @@ def format_table(results: list[SceneEvaluation], paper: bool = False) -> str:
     names = LOSS_KINDS
     head = ["scene", "kept of runs"] + [f"{names[k]} (kept)" for k in losses]
     head += [f"{names[k]} (all runs)" for k in losses]
-    head += [f"{names[k]} success" for k in losses] + ["s/run"]
+    head += [f"{names[k]} success" for k in losses] + ["good (right)", "s/run"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for scene, by_loss in rows.items():
         sizes = sorted({(v.summary.keep, v.summary.runs) for v in by_loss.values()})
@@ -260,6 +281,7 @@ def format_table(results: list[SceneEvaluation], paper: bool = False) -> str:
                   if k in by_loss else "" for k in losses]
         cells += [f"{by_loss[k].summary.success_rate * 100:.0f} %" if k in by_loss else ""
                   for k in losses]
+        cells.append(_verdicts([run for v in by_loss.values() for run in v.runs]))
         secs = [v.summary.seconds_per_run for v in by_loss.values()]
         cells.append(f"{np.mean(secs):.1f}")
         lines.append("| " + " | ".join(cells) + " |")

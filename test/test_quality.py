@@ -140,3 +140,13 @@ def test_network_noise_is_structured_and_seeded(model):
     assert set(np.unique(a)) <= set(np.unique(labels)) | {CITYSCAPES_ID[n] for n in
                                                           ("terrain", "road", "building",
                                                            "vegetation")}
+
+
+def test_named_noise_models_and_a_clear_error_for_unknown_ones():
+    from semcal_ros.scenes.labelnoise import noisy_labels
+
+    labels = target_image(camera(), world=street_world(step=0.12))
+    assert (noisy_labels(labels, "legacy", 2) != labels).any()
+    assert (noisy_labels(labels, "network", 2) != labels).any()
+    with pytest.raises(ValueError, match="label noise must be legacy or one of network"):
+        noisy_labels(labels, "gaussian")

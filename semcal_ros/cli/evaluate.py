@@ -36,6 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--single", action="store_true",
                    help="one schedule per start (no verification starts): the paper's single "
                         "run; default: the engine's full default procedure per start")
+    p.add_argument("--label-noise", default="",
+                   help="apply a label-noise model to every scene's labels.png first: legacy, "
+                        "network or kitti_espnetv2 (docs/quality.md)")
+    p.add_argument("--noise-seed", type=int, default=1, help="seed of --label-noise (default 1)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -83,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
                     bar.update(1)
 
                 res = evaluate_scene(folder, loss, protocol, params, mapping, map_file, on_run,
-                                     single=args.single)
+                                     single=args.single, label_noise=args.label_noise,
+                                     noise_seed=args.noise_seed)
                 results.append(res)
                 if args.overlay:
                     _write_overlay(args.overlay, folder, res, params, mapping, map_file)

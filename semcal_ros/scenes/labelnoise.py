@@ -189,3 +189,15 @@ def add_network_noise(labels: np.ndarray, rng: np.random.Generator,
         out = _grow(out, c, px)
     out = jitter_boundaries(out, rng, noise.jitter_px, noise.jitter_scale_px)
     return mislabel_blobs(out, rng, noise.blobs, noise.blob_radius_px)
+
+
+def noisy_labels(labels: np.ndarray, model: str, seed: int = 1) -> np.ndarray:
+    """``labels`` with the errors of a named model: ``legacy`` (the ``noisy_labels`` variant's
+    jitter and blobs) or a key of :data:`NOISE_MODELS`."""
+    rng = np.random.default_rng(seed)
+    if model == "legacy":
+        return add_label_noise(labels, rng)
+    if model not in NOISE_MODELS:
+        raise ValueError(f"label noise must be legacy or one of {', '.join(NOISE_MODELS)}, "
+                         f"not '{model}'")
+    return add_network_noise(labels, rng, NOISE_MODELS[model])
