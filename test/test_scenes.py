@@ -433,3 +433,69 @@ def test_catalogue_covers_every_layout_and_condition():
         catalogue(rows=("foggy",))
     with pytest.raises(ValueError, match="unknown map frame"):
         SceneOptions(map_frame="utm").validate()
+
+
+# ------------------------------------------------------------------------------------------
+def test_camera_rig_scene_has_each_camera_its_files_topics_and_a_map_that_fits_it(scene_factory):
+    """``--cameras 2``: two named cameras on one map, each with its own files and bag topics; the
+    top-level files are the first camera's (single-camera readers still work)."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    scene = scene_factory("junction", 0, "ideal", cameras=2, scans=20, write_scans=False)
+    listed = yaml.safe_load((scene / "cameras.yaml").read_text())["cameras"]
+    assert [c["name"] for c in listed] == ["northeast", "southeast"]
+    truths = {}
+    for cam in listed:
+        folder = scene / cam["folder"]
+        truth = yaml.safe_load((folder / "ground_truth.yaml").read_text())
+        assert truth["child_frame_id"] == cam["frame_id"] == f"{cam['name']}_optical"
+        truths[cam["name"]] = read_pose(folder / "ground_truth.yaml")
+        # the shared map agrees with this camera's own labels at its truth, not 1 m off
+        here = scene / "check"
+        here.mkdir(exist_ok=True)
+        for f in ("labels.png", "camera_info.yaml"):
+            (here / f).write_bytes((folder / f).read_bytes())
+        (here / "map.ply").unlink(missing_ok=True)
+        (here / "map.ply").symlink_to(scene / "map.ply")
+        good = agreement(here, truths[cam["name"]])
+        off = Pose(truths[cam["name"]].translation + [1.0, 0.0, 0.0],
+                   truths[cam["name"]].quaternion)
+        assert good > 0.85 and good > agreement(here, off) + 0.05, cam["name"]
+    a, b = truths.values()
+    assert translation_error(a, b) > 5.0 and rotation_error_deg(a, b) > 30.0
+    first = scene / listed[0]["folder"]
+    for f in ("labels.png", "image.png"):
+        assert (scene / f).read_bytes() == (first / f).read_bytes()
+    assert not np.array_equal(read_label_image(first / "labels.png"),
+                              read_label_image(scene / listed[1]["folder"] / "labels.png"))
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    seen: dict[str, set] = {}
+    with Reader(scene / "bag") as reader:
+        assert not any(c.topic.startswith("/camera/") for c in reader.connections)
+        for conn, _, raw in reader.messages():
+            if not conn.topic.startswith("/lidar/"):
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                seen.setdefault(conn.topic, set()).add(msg.header.frame_id)
+                if conn.topic == "/southeast/labels":
+                    np.testing.assert_array_equal(
+                        np.asarray(msg.data).reshape(600, 960),
+                        read_label_image(scene / "cameras/southeast/labels.png"))
+    assert seen == {t: {c["frame_id"]} for c in listed for t in c["topics"].values()}
+
+
+def test_camera_rig_is_for_junctions_and_at_most_eight():
+    from semcal_ros.scenes.rig import camera_rig
+
+    rng = lambda k: np.random.default_rng(k)  # noqa: E731
+    with pytest.raises(ValueError, match="junction"):
+        camera_rig(build_layout("arterial", np.random.default_rng(0)), 2, rng)
+    layout = build_layout("junction", np.random.default_rng(0))
+    with pytest.raises(ValueError, match="2 to 8"):
+        camera_rig(layout, 9, rng)
+    rig = camera_rig(layout, 8, rng)
+    assert len({c.name for c in rig}) == 8
+    # the layout's own camera is the rig camera of its corner; outward ones share a corner mast
+    assert sum(np.allclose(c.pose.translation, layout.camera_position) for c in rig) == 1
+    assert sum(not c.own_mast for c in rig) == 1

@@ -31,6 +31,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--mast", choices=("pole", "bracket"),
                    help="the camera's mast in the map: a plain pole (default) or with the "
                         "camera's housing, visor and arm (bracket)")
+    p.add_argument("--cameras", type=int,
+                   help="N >= 2: N named cameras round one junction (northeast, southeast, "
+                        "southwest, northwest, north, east, south, west; at most 8), each in "
+                        "cameras/<name>/ with its own bag topics /<name>/labels etc. (default: "
+                        "one camera, the single-camera folder)")
     p.add_argument("--catalogue", metavar="NAME",
                    help="a scene of the evaluation table (e.g. roundabout-sparse): sets kind, "
                         "variant, size, lines, frame and mast; --seed still applies")
@@ -70,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
                "threads": args.threads}
     for arg, field in (("scans", "scans"), ("lines", "lines"), ("voxel", "voxel"),
                        ("horizontal_step", "horizontal_step_deg"), ("frame", "map_frame"),
-                       ("mast", "mast")):
+                       ("mast", "mast"), ("cameras", "cameras")):
         if getattr(args, arg) is not None:
             changes[field] = getattr(args, arg)
     options = replace(options, **changes)
@@ -80,5 +85,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result.out}: {s['kind']}/{s['variant']} seed {s['seed']}, "
           f"{s['counts']['scans']} scans, {s['lidar']['lines']} lines, "
           f"map {s['counts']['map_points']} points, frame {options.map_frame}, "
-          f"mast {options.mast}, {s['seconds']['total']:.1f} s")
+          f"mast {options.mast}, {s['seconds']['total']:.1f} s"
+          + (f", cameras {', '.join(s['cameras'])}" if "cameras" in s else ""))
     return 0

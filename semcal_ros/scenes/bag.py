@@ -3,7 +3,9 @@
 Topics: ``/lidar/points`` (PointCloud2: x, y, z, intensity float32 + label uint16, packed,
 frame ``lidar``), ``/lidar/odom`` (Odometry of the lidar in ``map``), and the static camera's
 ``/camera/image_raw`` (rgb8), ``/camera/labels`` (mono8 trainIds) and ``/camera/camera_info``,
-repeated every ``camera_period`` seconds so a late subscriber still gets them. Messages use the
+repeated every ``camera_period`` seconds so a late subscriber still gets them. A multi-camera
+scene (``--cameras N``) has no ``/camera/*`` topics but ``/<name>/image_raw``, ``/<name>/labels`` and
+``/<name>/camera_info`` per camera, frame ``<name>_optical``. Messages use the
 Jazzy definitions of rosbags' type store, so the bag's type hashes match a Jazzy system.
 """
 
@@ -47,12 +49,19 @@ class CameraFrame:
     rgb: np.ndarray  # (H, W, 3) uint8
     labels: np.ndarray  # (H, W) uint8 trainIds
     frame_id: str = "camera_optical"
+    prefix: str = "camera"  # topics /<prefix>/image_raw, /<prefix>/labels, /<prefix>/camera_info
+
+    def topics(self) -> dict[str, str]:
+        """This camera's topics and types, in the order the bag lists them."""
+        return {f"/{self.prefix}/{name}": TOPICS[f"/camera/{name}"]
+                for name in ("image_raw", "labels", "camera_info")}
 
 
 class SceneBagWriter:
     """Writes scans, odometry and periodic camera messages in time order."""
 
-    def __init__(self, path: str | Path, camera: CameraFrame, camera_period: float = 1.0) -> None:
+    def __init__(self, path: str | Path, camera: CameraFrame | list[CameraFrame],
+                 camera_period: float = 1.0) -> None:
         path = Path(path)
         if path.exists():
             raise FileExistsError(f"bag output already exists: {path}")
@@ -60,9 +69,12 @@ class SceneBagWriter:
         self.t = self.ts.types
         self._writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._writer.open()
+        self.cameras = camera if isinstance(camera, list) else [camera]
+        self.types = {t: k for t, k in TOPICS.items() if t.startswith("/lidar/")}
+        for cam in self.cameras:
+            self.types.update(cam.topics())
         self._conn = {topic: self._writer.add_connection(topic, kind, typestore=self.ts)
-                      for topic, kind in TOPICS.items()}
-        self.camera = camera
+                      for topic, kind in self.types.items()}
         self.camera_period = camera_period
         self._next_camera: float | None = None
         self._closed = False
@@ -100,28 +112,28 @@ class SceneBagWriter:
             twist=self.t[g + "TwistWithCovariance"](
                 twist=self.t[g + "Twist"](linear=zero3, angular=zero3), covariance=np.zeros(36)))
 
-    def _image(self, stamp: float, data: np.ndarray, encoding: str):
+    def _image(self, stamp: float, data: np.ndarray, encoding: str, frame_id: str):
         h, w = data.shape[:2]
         channels = 1 if data.ndim == 2 else data.shape[2]
         return self.t["sensor_msgs/msg/Image"](
-            header=self._header(stamp, self.camera.frame_id), height=h, width=w,
+            header=self._header(stamp, frame_id), height=h, width=w,
             encoding=encoding, is_bigendian=0, step=w * channels,
             data=np.ascontiguousarray(data, np.uint8).reshape(-1))
 
-    def _camera_info(self, stamp: float):
-        cam = self.camera.camera
+    def _camera_info(self, stamp: float, frame: CameraFrame):
+        cam = frame.camera
         p = np.zeros((3, 4))
         p[:, :3] = cam.k
         roi = self.t["sensor_msgs/msg/RegionOfInterest"](
             x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         return self.t["sensor_msgs/msg/CameraInfo"](
-            header=self._header(stamp, self.camera.frame_id), height=cam.height, width=cam.width,
+            header=self._header(stamp, frame.frame_id), height=cam.height, width=cam.width,
             distortion_model="plumb_bob", d=cam.d.astype(np.float64), k=cam.k.ravel(),
             r=np.eye(3).ravel(), p=p.ravel(), binning_x=0, binning_y=0, roi=roi)
 
     # -- writing ----------------------------------------------------------------------------
     def _write(self, topic: str, stamp: float, msg) -> None:
-        raw = self.ts.serialize_cdr(msg, TOPICS[topic])
+        raw = self.ts.serialize_cdr(msg, self.types[topic])
         self._writer.write(self._conn[topic], int(round(stamp * 1e9)), raw)
 
     def _camera_until(self, stamp: float) -> None:
@@ -129,9 +141,11 @@ class SceneBagWriter:
             self._next_camera = stamp
         while self._next_camera <= stamp + 1e-9:
             t = self._next_camera
-            self._write("/camera/camera_info", t, self._camera_info(t))
-            self._write("/camera/image_raw", t, self._image(t, self.camera.rgb, "rgb8"))
-            self._write("/camera/labels", t, self._image(t, self.camera.labels, "mono8"))
+            for cam in self.cameras:
+                p = f"/{cam.prefix}/"
+                self._write(p + "camera_info", t, self._camera_info(t, cam))
+                self._write(p + "image_raw", t, self._image(t, cam.rgb, "rgb8", cam.frame_id))
+                self._write(p + "labels", t, self._image(t, cam.labels, "mono8", cam.frame_id))
             self._next_camera = t + self.camera_period
 
     def add_scan(self, stamp: float, translation: np.ndarray, quaternion: np.ndarray,

@@ -19,7 +19,9 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from semcal_ros.cloud import LabelledCloud
-from semcal_ros.io.files import write_camera_info, write_label_image, write_pose, write_rgb_image
+from semcal_ros.io.files import (
+    pose_to_dict, write_camera_info, write_label_image, write_pose, write_rgb_image,
+)
 from semcal_ros.io.ply import write_ply
 from semcal_ros.mapping.filters import voxel_downsample
 from semcal_ros.labels import CITYSCAPES, SEMANTIC_KITTI, SKY, LabelMapping
@@ -29,8 +31,11 @@ from semcal_ros.scenes import props
 from semcal_ros.scenes.actors import Actor, Polyline, actors_at
 from semcal_ros.scenes.bag import CameraFrame, SceneBagWriter
 from semcal_ros.scenes.labelnoise import add_label_noise
-from semcal_ros.scenes.layouts import KINDS, MAST_RADIUS, Layout, build_layout, mast_xy
+from semcal_ros.scenes.layouts import (
+    KINDS, MAST_RADIUS, Layout, build_layout, camera_mast, mast_xy,
+)
 from semcal_ros.scenes.mesh import LabelledMesh, MeshBuilder
+from semcal_ros.scenes.rig import MAX_CAMERAS, RigCamera, camera_rig
 from semcal_ros.scenes.sensors import LidarSpec, World, default_camera, pixel_rays, rotate, scan
 from semcal_ros.scenes.shading import shade, to_image
 
@@ -67,6 +72,7 @@ class SceneOptions:
     start_stamp: float = 1_700_000_000.0
     map_frame: str = "layout"  # "random": the whole scene rotated about z and shifted (MapFrame)
     mast: str = "pole"  # "bracket": the camera's housing, visor and arm on the mast too
+    cameras: int = 1  # >= 2: a rig of named cameras round a junction (scenes.rig, cameras/<name>/)
 
     def validate(self) -> None:
         if self.scans < 2:
@@ -86,6 +92,8 @@ class SceneOptions:
                              f"(choose from {', '.join(MAP_FRAMES)})")
         if self.mast not in MASTS:
             raise ValueError(f"unknown mast '{self.mast}' (choose from {', '.join(MASTS)})")
+        if not 1 <= self.cameras <= MAX_CAMERAS:
+            raise ValueError(f"cameras must be in 1..{MAX_CAMERAS}, got {self.cameras}")
 
 
 #: Named sizes of ``semcal scene --size``. ``small`` is the test and demo scene: a shorter drive
@@ -105,11 +113,14 @@ class SceneResult:
     summary: dict
 
 
-def _rng(seed: int, kind: str, purpose: str) -> np.random.Generator:
+def _rng(seed: int, kind: str, purpose: str, camera: int = 0) -> np.random.Generator:
+    """The stream of one purpose; ``camera`` k >= 1 is the k-th rig camera's own stream (camera
+    0 uses the single-camera streams)."""
     # append new purposes at the end: the index is part of every stream's seed
     purposes = ("layout", "actors", "image_actors", "lidar", "noise", "initial", "shading",
-                "frame")
-    return np.random.default_rng([int(seed), KINDS.index(kind), purposes.index(purpose)])
+                "frame", "rig")
+    return np.random.default_rng([int(seed), KINDS.index(kind), purposes.index(purpose)]
+                                 + ([int(camera)] if camera else []))
 
 
 @dataclass(frozen=True)
@@ -179,6 +190,21 @@ class ViewCrop:
         return (r2 <= self.radius ** 2) & ((off <= self.half_angle) | (r2 <= 100.0))
 
 
+class ViewsCrop:
+    """The union of several cameras' :class:`ViewCrop`: a rig's map holds what any camera sees.
+    Points are given relative to ``origin``."""
+
+    def __init__(self, crops: list[tuple[ViewCrop, np.ndarray]], origin: np.ndarray) -> None:
+        self.parts = [(crop, (np.asarray(centre, float) - origin).astype(np.float32))
+                      for crop, centre in crops]
+
+    def contains(self, rel_xyz: np.ndarray) -> np.ndarray:
+        inside = np.zeros(len(rel_xyz), bool)
+        for crop, offset in self.parts:
+            inside |= crop.contains(rel_xyz - offset)
+        return inside
+
+
 class MapAccumulator:
     """Scans placed with their poses, cropped to the camera's view, voxel-downsampled at the end.
 
@@ -186,7 +212,8 @@ class MapAccumulator:
     removing them is the map consumer's job.
     """
 
-    def __init__(self, crop: ViewCrop, origin: np.ndarray, scan_crop: float, voxel: float,
+    def __init__(self, crop: ViewCrop | ViewsCrop, origin: np.ndarray, scan_crop: float,
+                 voxel: float,
                  frame: MapFrame = MapFrame()) -> None:
         self.crop, self.origin = crop, np.asarray(origin, float)
         self.scan_crop, self.voxel = scan_crop, voxel
@@ -340,6 +367,14 @@ def _poses_yaml(path: Path, files: list[str], stamps: np.ndarray, positions: np.
     path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=200))
 
 
+def _cameras_yaml(path: Path, rig: list[RigCamera]) -> None:
+    """The list file of a multi-camera scene: each camera's folder, frame and bag topics."""
+    cameras = [{"name": c.name, "folder": f"cameras/{c.name}", "frame_id": c.frame_id,
+                "topics": {t: f"/{c.prefix}/{t}" for t in ("labels", "camera_info", "image_raw")}}
+               for c in rig]
+    path.write_text(yaml.safe_dump({"cameras": cameras}, sort_keys=False))
+
+
 def _class_counts(labels: np.ndarray) -> dict[str, int]:
     ids, counts = np.unique(labels, return_counts=True)
     return {SEMANTIC_KITTI.get(int(i), str(int(i))): int(c) for i, c in zip(ids, counts)}
@@ -375,12 +410,19 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     truth_layout = Pose.from_body_rpy_deg(layout.camera_position,
                                           [0.0, layout.camera_pitch_deg, layout.camera_yaw_deg])
     static = layout.static
-    if options.mast == "bracket":
+    multi = options.cameras > 1
+    rig = (camera_rig(layout, options.cameras, lambda k: _rng(seed, kind, "rig", k)) if multi
+           else [RigCamera("camera", truth_layout, False, float(layout.camera_yaw_deg))])
+    if options.mast == "bracket" or multi:
         gear = MeshBuilder()
-        props.camera_gear(gear, truth_layout.translation,
-                          truth_layout.rotation @ BODY_FROM_OPTICAL.T,
-                          mast_xy(layout.camera_position, layout.camera_yaw_deg), MAST_RADIUS,
-                          layout.camera_ground)
+        for cam in rig:
+            if cam.own_mast:
+                camera_mast(gear, cam.pose.translation, cam.yaw_deg, layout.camera_ground)
+            if options.mast == "bracket":
+                props.camera_gear(gear, cam.pose.translation,
+                                  cam.pose.rotation @ BODY_FROM_OPTICAL.T,
+                                  mast_xy(cam.pose.translation, cam.yaw_deg), MAST_RADIUS,
+                                  layout.camera_ground)
         static = LabelledMesh.concat([static, gear.build()])
     world = World(static, options.threads)
     frame = MapFrame.draw(_rng(seed, kind, "frame")) if options.map_frame == "random" \
@@ -397,19 +439,34 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
                     if dynamic else scan_actors)
     timing["layout"] = time.perf_counter() - t_start
 
-    # camera
+    # cameras: the first one's files at the top (the single-camera format), a rig's every
+    # camera's under cameras/<name>/ (docs/scenes.md)
     t0 = time.perf_counter()
     camera = default_camera()
-    labels, rgb = camera_images(world, truth_layout, actors_at(image_actors, t_camera), options,
-                                variant == "noisy_labels", _rng(seed, kind, "noise"),
-                                _rng(seed, kind, "shading"))
-    write_label_image(out / "labels.png", labels)
-    write_rgb_image(out / "image.png", rgb)
-    write_camera_info(out / "camera_info.yaml", camera)
-    truth = frame.pose(truth_layout)
-    write_pose(out / "ground_truth.yaml", truth)
-    write_pose(out / "initial.yaml",
-               frame.pose(perturbed_initial(truth_layout, _rng(seed, kind, "initial"))))
+    frames = []
+    for k, cam in enumerate(rig):
+        labels_k, rgb_k = camera_images(world, cam.pose, actors_at(image_actors, t_camera),
+                                        options, variant == "noisy_labels",
+                                        _rng(seed, kind, "noise", k),
+                                        _rng(seed, kind, "shading", k))
+        initial = frame.pose(perturbed_initial(cam.pose, _rng(seed, kind, "initial", k)))
+        folders = ([out] if k == 0 else []) + ([out / "cameras" / cam.name] if multi else [])
+        for folder in folders:
+            named = folder != out
+            folder.mkdir(parents=True, exist_ok=True)
+            write_label_image(folder / "labels.png", labels_k)
+            write_rgb_image(folder / "image.png", rgb_k)
+            write_camera_info(folder / "camera_info.yaml", camera,
+                              cam.name if named else "camera")
+            child = cam.frame_id if named else "camera_optical"
+            for name, pose in (("ground_truth.yaml", frame.pose(cam.pose)),
+                               ("initial.yaml", initial)):
+                (folder / name).write_text(yaml.safe_dump(
+                    pose_to_dict(pose, child_frame_id=child), sort_keys=False))
+        frames.append(CameraFrame(camera, rgb_k, labels_k, cam.frame_id, cam.prefix))
+    labels = frames[0].labels
+    if multi:
+        _cameras_yaml(out / "cameras.yaml", rig)
     timing["camera"] = time.perf_counter() - t0
 
     # lidar drive
@@ -424,14 +481,19 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     scan_dir.mkdir()
     bag = None
     if options.write_bag:
-        bag = SceneBagWriter(out / "bag", CameraFrame(camera, rgb, labels), options.camera_period)
+        bag = SceneBagWriter(out / "bag", frames, options.camera_period)
     rng_lidar = _rng(seed, kind, "lidar")
-    view_crop = ViewCrop(truth_layout, options.map_radius, options.map_view_margin_deg)
-    accumulators = {"map.ply": MapAccumulator(view_crop, truth_layout.translation,
-                                              options.scan_crop, options.voxel, frame)}
+    origin = rig[0].pose.translation
+    view_crop: ViewCrop | ViewsCrop = ViewCrop(truth_layout, options.map_radius,
+                                               options.map_view_margin_deg)
+    if multi:
+        view_crop = ViewsCrop([(ViewCrop(c.pose, options.map_radius, options.map_view_margin_deg),
+                                c.pose.translation) for c in rig], origin)
+    accumulators = {"map.ply": MapAccumulator(view_crop, origin, options.scan_crop,
+                                              options.voxel, frame)}
     if variant == "pose_noise":  # what accumulating with the perturbed poses would give
-        accumulators[NOISY_POSE_MAP] = MapAccumulator(view_crop, truth_layout.translation,
-                                                      options.scan_crop, options.voxel, frame)
+        accumulators[NOISY_POSE_MAP] = MapAccumulator(view_crop, origin, options.scan_crop,
+                                                      options.voxel, frame)
     directions = spec.directions()
     files = []
     scan_points = 0
@@ -475,7 +537,8 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     summary = {
         "kind": kind, "seed": int(seed), "variant": variant,
         "generator_version": GENERATOR_VERSION,
-        "options": {k: v for k, v in asdict(replace(options, lines=lines)).items()},
+        "options": {k: v for k, v in asdict(replace(options, lines=lines)).items()
+                    if k != "cameras" or multi},
         "lidar": {"lines": lines, "fov_deg": [spec.fov_down_deg, spec.fov_up_deg],
                   "horizontal_step_deg": spec.horizontal_step_deg, "max_range": spec.max_range,
                   "range_noise": spec.range_noise, "height": LIDAR_HEIGHT,
@@ -485,6 +548,7 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
                    "yaw_deg": float(layout.camera_yaw_deg + frame.yaw_deg),  # map frame
                    "stamp": float(stamps[0] + t_camera),
                    "mast": options.mast},
+        **({"cameras": [c.name for c in rig]} if multi else {}),
         "map_frame": {"yaw_deg": frame.yaw_deg, "shift": list(frame.shift),
                       "note": "map = Rz(yaw) * layout + shift"},
         "counts": {"scans": options.scans, "scan_points": int(scan_points),

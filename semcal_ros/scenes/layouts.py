@@ -51,6 +51,9 @@ class Layout:
     camera_ground: float  # ground height under the camera mast
     lanes: list[tuple[Polyline, float]] = field(default_factory=list)  # path, typical speed
     walkways: list[Walkway] = field(default_factory=list)
+    # junction only: half widths of road A (along x) and B (along y) and the pavement widths
+    # (wa, wb, sa, sb), so more cameras can stand on the corners (scenes.rig)
+    corners: tuple[float, float, float, float] | None = None
 
 
 def build_layout(kind: str, rng: np.random.Generator) -> Layout:
@@ -353,7 +356,7 @@ def junction(rng: np.random.Generator) -> Layout:
         walkways.append(Walkway(Polyline(np.array([[s * (wb + sb / 2), -extent],
                                                    [s * (wb + sb / 2), extent]])), KERB))
     return Layout("junction", mb.build(), drive, rng.uniform(7.0, 9.0), focus, cam, pitch, yaw,
-                  KERB, lanes, walkways)
+                  KERB, lanes, walkways, corners=(wa, wb, sa, sb))
 
 
 def _pavement_furniture(mb: MeshBuilder, rng: np.random.Generator, sx: int, sy: int,
