@@ -151,9 +151,26 @@ def assert_succeeded(out: Any, scene: Path) -> None:
     assert translation_error(pose, truth) < 0.5 * translation_error(start, truth)
     assert abs(np.linalg.norm(pose.quaternion) - 1.0) < 1e-6
     assert 0.0 < r.loss < 1.0 and math.isfinite(r.loss)
-    assert 0 < r.evaluations <= sum(CHEAP_ENGINE["engine.schedule.max_evaluations"]) + 10
+    # the search's renders plus the quality report's probes (at most ~11 per axis direction)
+    assert 0 < r.evaluations <= sum(CHEAP_ENGINE["engine.schedule.max_evaluations"]) + 10 + 150
+    assert_quality(r)
     assert r.seconds > 0.0
     assert (r.spread_translation_m, r.spread_rotation_deg) == (0.0, 0.0)  # one run
+
+
+def assert_quality(r: Any) -> None:
+    """A success carries its quality report: a verdict with its reason and the figures."""
+    from semcal_ros.quality import VERDICTS
+
+    assert r.verdict in VERDICTS and r.verdict_reason, (r.verdict, r.verdict_reason)
+    assert f"verdict {r.verdict}" in r.message
+    assert 0.5 < r.agreement <= 1.0 and 0.0 < r.coverage <= 1.0
+    assert len(r.agreement_classes) == len(r.agreement_per_class) > 0
+    assert "road" in r.agreement_classes
+    assert all(0.0 <= v <= 1.0 for v in r.agreement_per_class)
+    ut, ur = r.uncertainty_translation_m, r.uncertainty_rpy_deg
+    assert all(0.0 < v <= 2.5 for v in (ut.x, ut.y, ut.z)), ut  # capped at the search bounds
+    assert all(0.0 < v <= 5.0 for v in (ur.y, ur.z)), ur
 
 
 def wait_idle(c: Calibrator, timeout: float = 30.0) -> None:

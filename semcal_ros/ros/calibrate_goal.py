@@ -14,10 +14,10 @@ import numpy as np
 
 from semcal_ros import validation
 from semcal_ros.camera import CameraModel
-from semcal_ros.cloud import LabelledCloud
 from semcal_ros.config import apply_flat
 from semcal_ros.params import CalibrationParams
 from semcal_ros.pose import Pose
+from semcal_ros.ros.held_map import HeldMap
 
 ROLL_CHOICES = {0: None, 1: False, 2: True}  # ROLL_DEFAULT, ROLL_FIXED, ROLL_FREE
 YAW_SEARCH_CHOICES = {0: None, 1: False, 2: True}
@@ -28,7 +28,7 @@ LOSS_CHOICES = ("", "l2", "huber")
 class Inputs:
     """What the calibrator node holds when a goal arrives (None: not received yet)."""
 
-    map_cloud: LabelledCloud | None
+    map: HeldMap | None  # prepared once per map, shared by every goal and camera
     map_frame: str
     labels: np.ndarray | None
     labels_frame: str
@@ -80,9 +80,9 @@ def goal_problems(goal: Any, inputs: Inputs) -> list[str]:
 def input_problems(camera_frame_id: str, inputs: Inputs) -> list[str]:
     """Missing or inconsistent map / label image / CameraInfo."""
     problems = []
-    if inputs.map_cloud is None:
+    if inputs.map is None:
         problems.append(f"no map received yet (topic '{inputs.map_topic}')")
-    elif len(inputs.map_cloud) == 0:
+    elif len(inputs.map) == 0:
         problems.append(f"the map on '{inputs.map_topic}' is empty")
     return problems + camera_problems(camera_frame_id, inputs.labels, inputs.labels_frame,
                                       inputs.camera, inputs.labels_topic,
@@ -148,7 +148,7 @@ def goal_request(goal: Any, inputs: Inputs, defaults: CalibrationParams,
                              p.orientation.w]))
     params = goal_params(goal, defaults)
     validation.check(validation.reach_problems(
-        initial.translation, validation.map_bounds(inputs.map_cloud.xyz), params))
+        initial.translation, inputs.map.bounds, params))
     camera_frame = goal.camera_frame_id or inputs.camera.frame_id or "camera_optical"
     seed = int(goal.seed) if goal.seed >= 0 else default_seed
     return Request(initial, params, seed if seed >= 0 else None, inputs.map_frame, camera_frame)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 PROFILE_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
 
@@ -60,9 +60,10 @@ def release_free_memory() -> None:
         pass
 
 
-def run_node(make_node: Callable[[], "object"], threads: int = 1,
+def run_node(make_node: Callable[[], "object"], threads: int | Callable[[Any], int] = 1,
              args: list[str] | None = None) -> int:
-    """Init rclpy, build the node, spin it until shut down; the process exit code."""
+    """Init rclpy, build the node, spin it until shut down; the process exit code. ``threads``
+    of the executor may depend on the node (a callable given the built node)."""
     import rclpy
     from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
                                  SingleThreadedExecutor)
@@ -76,6 +77,8 @@ def run_node(make_node: Callable[[], "object"], threads: int = 1,
         except (ValueError, FileNotFoundError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 1
+        if callable(threads):
+            threads = threads(node)
         executor = MultiThreadedExecutor(threads) if threads > 1 else SingleThreadedExecutor()
         executor.add_node(node)
         try:
