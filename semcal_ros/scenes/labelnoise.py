@@ -201,3 +201,23 @@ def noisy_labels(labels: np.ndarray, model: str, seed: int = 1) -> np.ndarray:
         raise ValueError(f"label noise must be legacy or one of {', '.join(NOISE_MODELS)}, "
                          f"not '{model}'")
     return add_network_noise(labels, rng, NOISE_MODELS[model])
+
+
+def confusion_shares(predicted: np.ndarray, truth: np.ndarray, min_share: float = 0.04
+                     ) -> dict[str, dict[str, float]]:
+    """Per true class, the share of its (labelled) pixels a segmenter gave each other class, for
+    shares of at least ``min_share``: how :data:`KITTI_ESPNETV2` was measured (ESPNetv2's labels of
+    KITTI frame 0 against the scan's projected SemanticKITTI labels; docs/quality.md)."""
+    from semcal_ros.labels import CITYSCAPES, INVALID
+
+    both = (predicted != INVALID) & (truth != INVALID)
+    p, t = predicted[both].astype(np.int64), truth[both].astype(np.int64)
+    out: dict[str, dict[str, float]] = {}
+    for c in np.unique(t):
+        if int(c) not in CITYSCAPES:
+            continue
+        counts = np.bincount(p[t == c], minlength=256) / max(int((t == c).sum()), 1)
+        out[CITYSCAPES[int(c)]] = {CITYSCAPES[int(o)]: round(float(counts[o]), 3)
+                                   for o in np.nonzero(counts >= min_share)[0]
+                                   if o != c and int(o) in CITYSCAPES}
+    return out
