@@ -329,9 +329,10 @@ def perturb_poses(positions: np.ndarray, quats: np.ndarray, rng: np.random.Gener
 
 
 def camera_images(world: World, pose: Pose, moving: LabelledMesh, options: SceneOptions,
-                  noisy: bool, rng_noise: np.random.Generator, rng_shade: np.random.Generator
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Label image (trainIds, sky where nothing is hit) and shaded RGB image of the camera."""
+                  noisy: bool, rng_noise: np.random.Generator, rng_shade: np.random.Generator,
+                  rgb: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Label image (trainIds, sky where nothing is hit) and shaded RGB image of the camera
+    (None without ``rgb``)."""
     camera = default_camera()
     dirs = pixel_rays(camera, pose)
     hits = world.cast(pose.translation, dirs, moving)
@@ -339,6 +340,8 @@ def camera_images(world: World, pose: Pose, moving: LabelledMesh, options: Scene
     labels = labels.reshape(camera.height, camera.width)
     if noisy:
         labels = add_label_noise(labels, rng_noise)
+    if not rgb:
+        return labels, None
     s = options.supersample
     dirs = pixel_rays(camera, pose, s) if s > 1 else dirs
     hits = world.cast(pose.translation, dirs, moving) if s > 1 else hits
@@ -392,20 +395,30 @@ def prepare_output(out: Path, force: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
-def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
-                   variant: str = "ideal", options: SceneOptions = SceneOptions(),
-                   force: bool = False, progress: bool = True) -> SceneResult:
-    """Generate the scene folder ``out``; returns its path and the scene.yaml summary."""
-    if kind not in KINDS:
-        raise ValueError(f"unknown scene kind '{kind}' (choose from {', '.join(KINDS)})")
-    if variant not in VARIANTS:
-        raise ValueError(f"unknown variant '{variant}' (choose from {', '.join(VARIANTS)})")
-    options.validate()
-    out = Path(out)
-    prepare_output(out, force)
-    t_start = time.perf_counter()
-    timing: dict[str, float] = {}
+@dataclass
+class SceneWorld:
+    """Everything a (kind, seed, variant, options) scene is drawn from, before any sensor writes:
+    the scene generator and :func:`camera_view` (a camera's labels at another pose) share it."""
 
+    layout: Layout
+    truth_layout: Pose
+    rig: list
+    multi: bool
+    static: LabelledMesh
+    world: World
+    frame: "MapFrame"
+    lines: int
+    spec: LidarSpec
+    scan_actors: list
+    image_actors: list
+    times: np.ndarray
+    positions: np.ndarray
+    quats: np.ndarray
+    t_camera: float
+
+
+def scene_world(kind: str, seed: int, variant: str, options: SceneOptions) -> SceneWorld:
+    """The world of a scene: layout, camera rig, meshes, map frame, actors and the drive."""
     layout = build_layout(kind, _rng(seed, kind, "layout"))
     truth_layout = Pose.from_body_rpy_deg(layout.camera_position,
                                           [0.0, layout.camera_pitch_deg, layout.camera_yaw_deg])
@@ -437,6 +450,49 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     t_camera = float(times[len(times) // 2])
     image_actors = (make_actors(layout, _rng(seed, kind, "image_actors"), n_cars, n_people)
                     if dynamic else scan_actors)
+    return SceneWorld(layout, truth_layout, rig, multi, static, world, frame, lines, spec,
+                      scan_actors, image_actors, times, positions, quats, t_camera)
+
+
+def camera_view(kind: str, seed: int, variant: str, options: SceneOptions, pose: Pose,
+                noise_seed: int | None = None, world: SceneWorld | None = None) -> np.ndarray:
+    """The label image a scene's camera would see from ``pose`` (map frame): what a camera that
+    was knocked or re-aimed delivers (drift benchmarks, the demo). With ``noise_seed`` the
+    labels get the noisy_labels variant's segmentation noise drawn from that seed (a new network
+    output per frame); ``world`` reuses a :func:`scene_world` already built."""
+    sw = world or scene_world(kind, seed, variant, options)
+    layout_pose = pose
+    if not sw.frame.identity:  # map frame -> layout frame
+        rot = sw.frame.rotation
+        layout_pose = Pose.from_matrix(rot.T @ pose.rotation,
+                                       rot.T @ (pose.translation - np.asarray(sw.frame.shift)))
+    labels, _ = camera_images(sw.world, layout_pose, actors_at(sw.image_actors, sw.t_camera),
+                              replace(options, supersample=1), noise_seed is not None,
+                              np.random.default_rng(noise_seed), np.random.default_rng(0),
+                              rgb=False)
+    return labels
+
+
+def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
+                   variant: str = "ideal", options: SceneOptions = SceneOptions(),
+                   force: bool = False, progress: bool = True) -> SceneResult:
+    """Generate the scene folder ``out``; returns its path and the scene.yaml summary."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown scene kind '{kind}' (choose from {', '.join(KINDS)})")
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant '{variant}' (choose from {', '.join(VARIANTS)})")
+    options.validate()
+    out = Path(out)
+    prepare_output(out, force)
+    t_start = time.perf_counter()
+    timing: dict[str, float] = {}
+
+    sw = scene_world(kind, seed, variant, options)
+    layout, truth_layout, rig, multi, world, frame = (sw.layout, sw.truth_layout, sw.rig,
+                                                      sw.multi, sw.world, sw.frame)
+    lines, spec, scan_actors, image_actors = sw.lines, sw.spec, sw.scan_actors, sw.image_actors
+    times, positions, quats, t_camera = sw.times, sw.positions, sw.quats, sw.t_camera
+    static = sw.static
     timing["layout"] = time.perf_counter() - t_start
 
     # cameras: the first one's files at the top (the single-camera format), a rig's every

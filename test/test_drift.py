@@ -1,0 +1,66 @@
+"""Drift check (semcal_ros.drift) and ``semcal check`` on the small junction: an unchanged camera
+passes, a turned one is flagged with its drift, and what cannot be judged says so."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from semcal_ros.drift import DriftChecker, DriftParams
+from semcal_ros.io import files, ply
+from semcal_ros.pose import Pose
+from semcal_ros.scenes import SIZES
+from semcal_ros.scenes.generate import camera_view
+
+
+@pytest.fixture(scope="module")
+def junction(demo_scene: Path):
+    cloud = ply.read_ply(demo_scene / "map.ply")
+    camera = files.read_camera_info(demo_scene / "camera_info.yaml")
+    truth = files.read_pose(demo_scene / "ground_truth.yaml")
+    return demo_scene, cloud, camera, truth, DriftChecker(cloud, camera, truth)
+
+
+def turned(pose: Pose, yaw_deg: float, metres: float = 0.0) -> Pose:
+    rpy = pose.body_rpy_deg() + [0.0, 0.0, yaw_deg]
+    return Pose.from_body_rpy_deg(pose.translation + [metres, 0.0, 0.0], rpy)
+
+
+def test_unchanged_camera_is_ok_and_a_turned_one_is_flagged_with_its_drift(junction):
+    scene, _, _, truth, checker = junction
+    labels = files.read_label_image(scene / "labels.png")
+    reference = checker.check(labels)
+    assert reference.judged and reference.evaluations > 10
+    same = checker.check(labels, reference=reference)
+    assert same.level == "ok" and same.drift_rotation_deg == 0.0
+    moved = turned(truth, 0.4, 0.05)
+    view = camera_view("junction", 0, "ideal", SIZES["small"], moved)
+    report = checker.check(view, reference=reference)
+    assert report.level in ("warn", "error"), report.summary()
+    assert 0.2 <= report.drift_rotation_deg <= 0.6
+    assert report.loss_best < report.loss_calibrated
+    # the estimate moved towards the camera's new pose, not away from it
+    assert abs(report.estimated.body_rpy_deg()[2] - moved.body_rpy_deg()[2]) < 0.25
+
+
+def test_cannot_judge_without_an_image_or_with_a_map_out_of_view(junction):
+    _, cloud, camera, truth, checker = junction
+    assert checker.check(None).level == "unknown"
+    away = Pose(truth.translation + [500.0, 500.0, 0.0], truth.quaternion)  # nothing in view
+    blind = DriftChecker(cloud, camera, away, prepared=checker.pmap)
+    report = blind.check(np.full((camera.height, camera.width), 0, np.uint8))
+    assert report.level == "unknown" and "covers" in report.message
+    wrong = blind.check(np.zeros((10, 10), np.uint8))
+    assert wrong.level == "unknown" and "camera_info" in wrong.message
+
+
+def test_drift_parameters_are_checked():
+    with pytest.raises(ValueError, match="drift.bound_m"):
+        DriftParams(bound_m=0)
+    with pytest.raises(ValueError, match="inside the search bounds"):
+        DriftParams(error_rotation_deg=2.0)
