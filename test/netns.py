@@ -104,6 +104,7 @@ class VethPair:
             self._create()
         except subprocess.CalledProcessError as exc:
             self.close()
+            run_ip("link", "delete", self.vehicle.ifname, check=False)  # if not moved yet
             raise RuntimeError(f"could not make the namespaces: {' '.join(exc.cmd)}: "
                                f"{exc.stderr.strip()}") from None
 
@@ -165,8 +166,40 @@ def remove_stale_namespaces() -> list[str]:
 
 
 # --- DDS on the link ---------------------------------------------------------------------------
-def link_profile(path: Path, address: str, buffer: int = SOCKET_BUFFER) -> Path:
-    """A Fast DDS profile for one host: UDPv4 only (no shared memory), on ``address`` only."""
+def link_profile(path: Path, address: str, buffer: int = SOCKET_BUFFER,
+                 flow_bytes_per_s: int | None = None, flow_topics: tuple[str, ...] = ("/map",)
+                 ) -> Path:
+    """A Fast DDS profile for one host: UDPv4 only (no shared memory), on ``address`` only.
+
+    ``flow_bytes_per_s``: the writers of ``flow_topics`` (ROS topic names are the profile names
+    rmw_fastrtps looks up) send at most that many bytes per second, in 50 ms slices. Without it
+    a 16 MB map leaves as one burst; on a link slower than the sender with a shallow queue
+    (tc tbf at 100 Mbit/s, 200 ms) most of it was dropped and the repairs stalled (the map did
+    not arrive in 18 s); at 10 MB/s it arrived 1.7-3.3 s after the publisher process started,
+    with 16.5-16.8 MB on the wire. Needs
+    ``RMW_FASTRTPS_PUBLICATION_MODE=ASYNCHRONOUS`` (:func:`link_environment` sets it): a
+    synchronous writer with a flow controller is refused ("could not create data writer").
+    """
+    flow = writers = ""
+    if flow_bytes_per_s:
+        flow = f"""      <flow_controller_descriptor_list>
+        <flow_controller_descriptor>
+          <name>link_rate</name>
+          <scheduler>FIFO</scheduler>
+          <max_bytes_per_period>{max(int(flow_bytes_per_s / 20), 65536)}</max_bytes_per_period>
+          <period_ms>50</period_ms>
+        </flow_controller_descriptor>
+      </flow_controller_descriptor_list>
+"""
+        writers = "".join(f"""  <data_writer profile_name="{topic}">
+    <qos>
+      <publishMode>
+        <kind>ASYNCHRONOUS</kind>
+        <flow_controller_name>link_rate</flow_controller_name>
+      </publishMode>
+    </qos>
+  </data_writer>
+""" for topic in flow_topics)
     path.write_text(f"""<?xml version="1.0" encoding="UTF-8" ?>
 <!-- semcal_ros two hosts: UDPv4 on the link address only; no shared-memory transport -->
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
@@ -181,11 +214,11 @@ def link_profile(path: Path, address: str, buffer: int = SOCKET_BUFFER) -> Path:
   </transport_descriptors>
   <participant profile_name="semcal_link" is_default_profile="true">
     <rtps>
-      <userTransports><transport_id>link_udp</transport_id></userTransports>
+{flow}      <userTransports><transport_id>link_udp</transport_id></userTransports>
       <useBuiltinTransports>false</useBuiltinTransports>
     </rtps>
   </participant>
-</profiles>
+{writers}</profiles>
 """)
     return path
 
@@ -193,7 +226,7 @@ def link_profile(path: Path, address: str, buffer: int = SOCKET_BUFFER) -> Path:
 def link_environment(domain: int, profile: Path, peers: list[str]) -> dict[str, str]:
     """The environment of a node on one host: the nodes' usual one (:mod:`launch`), but discovery
     over the subnet with the hosts as static peers and the link profile instead of the
-    shared-memory one."""
+    shared-memory one (asynchronous publication where the profile has a flow controller)."""
     env = ros_environment(domain)
     env.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
     env.pop("FASTDDS_BUILTIN_TRANSPORTS", None)  # the profile decides the transports
@@ -201,6 +234,8 @@ def link_environment(domain: int, profile: Path, peers: list[str]) -> dict[str, 
                 "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET",
                 "ROS_STATIC_PEERS": ";".join(peers),
                 "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)})
+    if "<flow_controller_name>" in profile.read_text():
+        env["RMW_FASTRTPS_PUBLICATION_MODE"] = "ASYNCHRONOUS"
     return env
 
 
@@ -249,8 +284,10 @@ class Hosts:
     for comparison. Role "outside" is this machine's own network with discovery over the subnet,
     the link's addresses as static peers and shared memory on: a node that tries to join."""
 
-    def __init__(self, link: VethPair | None, domain: int, log_dir: Path) -> None:
+    def __init__(self, link: VethPair | None, domain: int, log_dir: Path,
+                 flow_bytes_per_s: int | None = None) -> None:
         self.link, self.domain, self.log_dir = link, domain, Path(log_dir)
+        self.flow_bytes_per_s = flow_bytes_per_s
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self.graphs: dict[str, HostGraph] = {}
 
@@ -259,7 +296,8 @@ class Hosts:
             return self.graphs[role]
         if self.link is not None and role in ("vehicle", "rsu"):
             host = getattr(self.link, role)
-            profile = link_profile(self.log_dir / f"{role}-fastdds.xml", host.address)
+            profile = link_profile(self.log_dir / f"{role}-fastdds.xml", host.address,
+                                   flow_bytes_per_s=self.flow_bytes_per_s)
             graph = HostGraph(role, host, link_environment(self.domain, profile,
                                                            self.link.peers()), self.log_dir)
         else:
