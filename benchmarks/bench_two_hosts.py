@@ -14,8 +14,9 @@ In each, the roadside client waits until the calibrator holds the whole map, sen
 calibration goals one after the other (no verification starts) and then ``--refused`` goals the
 calibrator answers at once (a negative bound: the action protocol's own round trip, no engine).
 Round trip = send goal -> result at the client; "difference" = round trip - the engine's own
-seconds (what the ROS side adds). Prints every goal, the medians and the ratios. ``--rate 100mbit``
-limits the link (tc tbf on both veth ends) to see what a real link's speed does to the map.
+seconds (what the ROS side adds). Prints every goal, the medians and the ratios. ``--rate 100``
+limits the link to 100 Mbit/s (tc tbf on both veth ends, and a flow controller on the map's
+writer) to see what a real link's speed does to the map.
 Run it alone (under the shared CPU lock): the figure is CPU-bound and a second job moves it.
 
     flock /tmp/semcal-heavy.lock .venv/bin/python benchmarks/bench_two_hosts.py --scene SCENE
@@ -46,17 +47,20 @@ from semcal_ros.ros.launch import DomainLock  # noqa: E402
 
 
 def run_mode(mode: str, scene: Path, out: Path, goals: int, refused: int, params: dict,
-             rate: str | None = None) -> dict:
-    """One pipeline (``two-hosts`` or ``localhost``); the client's report plus link counters."""
+             rate_mbit: float | None = None) -> dict:
+    """One pipeline (``two-hosts`` or ``localhost``); the client's report plus link counters.
+    ``rate_mbit``: the link limited to that rate (a token bucket with a 200 ms queue on each veth
+    end) and the map's writer to 80 % of it (a Fast DDS flow controller)."""
     lock = DomainLock()
     link = netns.VethPair() if mode == "two-hosts" else None
-    hosts = netns.Hosts(link, lock.domain, out)
+    flow = int(rate_mbit * 1e6 / 8 * 0.8) if rate_mbit and link is not None else None
+    hosts = netns.Hosts(link, lock.domain, out, flow_bytes_per_s=flow)
     try:
-        if link is not None and rate:
-            for host in link.hosts:  # a token bucket on each end: a link of that speed
+        if flow:
+            for host in link.hosts:
                 subprocess.run(host.exec_argv(["tc", "qdisc", "add", "dev", host.ifname, "root",
-                                               "tbf", "rate", rate, "burst", "64kb",
-                                               "latency", "200ms"]), check=True)
+                                               "tbf", "rate", f"{rate_mbit}mbit", "burst",
+                                               "64kb", "latency", "200ms"]), check=True)
         t0 = time.monotonic()
         client, _ = netns.start_pipeline(hosts, scene, out / "client.json", goals=goals,
                                          refused=refused, calibrator_params=params,
@@ -91,8 +95,10 @@ def main() -> int:
     ap.add_argument("--evaluations", type=int, nargs=3, default=[60, 30, 30],
                     help="engine.schedule.max_evaluations (default 60 30 30, no restarts: a "
                          "short engine run; 0 0 0 = the calibrator's default schedule)")
-    ap.add_argument("--rate", help="limit the link to this rate with a token bucket (tc tbf), "
-                                   "e.g. 100mbit (default: the veth's full speed)")
+    ap.add_argument("--rate", type=float, metavar="MBIT",
+                    help="limit the link to MBIT Mbit/s (tc tbf, 200 ms queue) and the map's "
+                         "writer to 80 %% of it (Fast DDS flow controller); default: the veth's "
+                         "full speed, no flow controller")
     ap.add_argument("--out", type=Path, help="folder for logs and reports")
     args = ap.parse_args()
 
@@ -112,8 +118,8 @@ def main() -> int:
               {"engine.schedule.max_evaluations": args.evaluations,
                "engine.schedule.restarts": [0, 0, 0]})
     print(f"scene {scene}; {args.rounds} runs per mode, each {args.goals} calibration goals + "
-          f"{args.refused} refused goals; engine {params or 'default schedule'}; link rate "
-          f"{args.rate or 'unlimited'}; logs in {out}")
+          f"{args.refused} refused goals; engine {params or 'default schedule'}; link "
+          f"{f'{args.rate:g} Mbit/s' if args.rate else 'unlimited'}; logs in {out}")
     goals: dict[str, list[dict]] = {"localhost": [], "two-hosts": []}
     for r in range(1, args.rounds + 1):
         for mode in goals:

@@ -40,6 +40,7 @@ if str(REPO) not in sys.path:  # run as a script from anywhere
     sys.path.insert(0, str(REPO))
 
 from semcal_ros.ros.launch import BIN, NodeProcess, ros_args, ros_environment  # noqa: E402
+from semcal_ros.ros.live_demo import ODOM_TOPIC, SCAN_TOPIC, scan_count  # noqa: E402
 
 SUBNET = "10.77.0"
 PREFIX = 24
@@ -317,18 +318,7 @@ class Hosts:
             graph.close()
 
 
-SCAN_TOPIC, ODOM_TOPIC = "/lidar/points", "/lidar/odom"
 CAMERA_TOPICS = ["/camera/labels", "/camera/camera_info", "/camera/image_raw"]
-
-
-def scan_count(bag: Path) -> int:
-    from semcal_ros.ros.replay import open_bag
-
-    reader = open_bag(bag)
-    try:
-        return sum(c.msgcount for c in reader.connections if c.topic == SCAN_TOPIC)
-    finally:
-        reader.close()
 
 
 def start_pipeline(hosts: Hosts, scene: Path, report: Path, goals: int = 1, refused: int = 0,
