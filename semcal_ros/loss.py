@@ -41,6 +41,11 @@ class LossParams:
     # class); 0 = every mismatch costs in full (the paper). Boundaries a network drew a few pixels
     # off then cost little, and the loss near the optimum becomes quadratic instead of V-shaped.
     boundary_band_px: float = 0.0
+    # px (full resolution): regions where the map and the labels disagree at the first result and
+    # that are at least this wide (a morphological opening of the disagreement) are taken for
+    # label errors (a blob of a wrong class, a missed object) and left out of a second refinement;
+    # a pose error only makes thin bands along boundaries. 0 = off (the paper).
+    outlier_width_px: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -56,6 +61,9 @@ class LossParams:
             raise ValueError(f"loss.degenerate_loss must be > 0, got {self.degenerate_loss}")
         if not 0.0 <= self.uncovered_cost <= 3.0:  # 3 = the largest colour distance
             raise ValueError(f"loss.uncovered_cost must be in [0, 3], got {self.uncovered_cost}")
+        if not 0.0 <= self.outlier_width_px <= 200.0:
+            raise ValueError(f"loss.outlier_width_px must be in [0, 200], got "
+                             f"{self.outlier_width_px}")
         if not 0.0 <= self.boundary_band_px <= 50.0:
             raise ValueError(f"loss.boundary_band_px must be in [0, 50], got "
                              f"{self.boundary_band_px}")
@@ -217,3 +225,18 @@ class LabelLoss:
         if n_valid == 0 or coverage < self.params.min_coverage:
             return self.params.degenerate_loss, coverage
         return total / n_valid, coverage
+
+
+def label_outliers(rendered: np.ndarray, target: np.ndarray, width_px: float,
+                   grow_px: int = 2) -> np.ndarray:
+    """bool mask of target pixels taken for label errors at a pose: where map and labels disagree
+    over a region at least ``width_px`` wide (an opening with a disc of that diameter keeps those
+    and drops the thin bands a small pose error draws along boundaries), grown by ``grow_px``."""
+    disagree = (rendered != INVALID) & (target != INVALID) & (rendered != target)
+    k = max(3, int(round(width_px)) | 1)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    wide = cv2.morphologyEx(disagree.astype(np.uint8), cv2.MORPH_OPEN, disc)
+    if grow_px > 0 and wide.any():
+        g = 2 * grow_px + 1
+        wide = cv2.dilate(wide, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (g, g)))
+    return wide.astype(bool)

@@ -245,6 +245,31 @@ def _basins(poses: list[Pose], losses: list[float], tol_m: float, tol_deg: float
     return basin, heads
 
 
+def _without_label_outliers(problem: Problem, search: Search, pose: Pose, loss: float, run: int
+                            ) -> tuple[Pose, float]:
+    """Leave out the regions the result says are label errors (``loss.outlier_width_px``) and
+    refine again from the result at the finer stages; keeps the first result when nothing is
+    left out. The loss returned is the full problem's at the new pose (comparable with the
+    runs' losses)."""
+    from semcal_ros.loss import label_outliers
+
+    ignore = label_outliers(problem.render(pose), problem.target,
+                            problem.params.loss.outlier_width_px)
+    if not ignore.any():
+        return pose, loss
+    clean = problem.masked(ignore)
+    polish = Search(clean, search.counter)
+    center = pose.vector()
+    for k in range(1, len(problem.stages)):
+        search.counter.begin_stage(f"without label errors ({ignore.mean() * 100:.1f} % of the "
+                                   f"image), stage {k + 1}/{len(problem.stages)}")
+        center, _ = polish.nelder_mead(k, center, run)
+        center, _ = polish.restart(k, center, clean.loss(Pose.from_vector(center), k), run,
+                                   "without label errors")
+    new = Pose.from_vector(center)
+    return new, problem.loss(new)
+
+
 def solve(problem: Problem, initial: Pose, seed: int | None = None,
           progress: Callable[[Progress], None] | None = None,
           should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
@@ -283,6 +308,8 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
     counter.report()
     win = min(refined, key=lambda i: refined[i][1])
     best_pose, best_loss = refined[win][0], refined[win][1]
+    if params.loss.outlier_width_px > 0:
+        best_pose, best_loss = _without_label_outliers(problem, search, best_pose, best_loss, win)
     final = problem.evaluate(best_pose)
     if problem.degenerate(final):
         raise ValueError(

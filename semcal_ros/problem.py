@@ -9,6 +9,7 @@ render and one table lookup per pixel.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,6 +115,21 @@ class Problem:
     def loss(self, pose: Pose, stage: int = -1) -> float:
         """The paper's masked, normalised loss at ``pose`` (``stage`` -1: full resolution)."""
         return self.level(stage).loss(self.render(pose, stage))
+
+    def masked(self, ignore: np.ndarray) -> "Problem":
+        """The same problem with the target's pixels where ``ignore`` is True left out of the loss
+        (set to INVALID): the prepared map and the view set-ups are shared, only the targets and
+        their loss tables are rebuilt."""
+        other = copy.copy(self)
+        other.target = np.where(ignore, INVALID, self.target).astype(np.uint8)
+        other._levels = {}
+        for scale, level in self._levels.items():
+            off = scale // 2
+            cam = level.setup.camera
+            small = other.target[off::scale, off::scale][:cam.height, :cam.width]
+            other._levels[scale] = Level(scale, level.setup, LabelLoss(
+                np.ascontiguousarray(small), self.params.loss, scale))
+        return other
 
     def degenerate(self, evaluation: Evaluation) -> bool:
         """True for a view that shows (almost) none of the map: never a result."""

@@ -171,3 +171,34 @@ def test_free_roll_adds_a_parameter(problem, world, target):
     assert list(free.free) == [0, 1, 2, 3, 4, 5]
     moved = free.pose_at(INITIAL.vector(), np.array([0, 0, 0, 1.0, 0, 0]))
     assert moved.body_rpy_deg()[0] == pytest.approx(INITIAL.body_rpy_deg()[0] + 2.0)
+
+
+def test_a_masked_problem_shares_the_map_and_leaves_the_pixels_out(problem, world, target):
+    from semcal_ros.labels import INVALID
+
+    off = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.3, 0, 0], GROUND_TRUTH.body_rpy_deg())
+    ignore = np.zeros(target.shape, bool)
+    ignore[: target.shape[0] // 2] = True
+    masked = problem.masked(ignore)
+    assert masked.pmap is problem.pmap and masked.camera is problem.camera
+    by_hand = Problem(world, np.where(ignore, INVALID, target).astype(np.uint8), camera(),
+                      GROUND_TRUTH.translation, prepared=problem.pmap)
+    for stage in range(len(problem.stages)):
+        assert masked.loss(off, stage) == pytest.approx(by_hand.loss(off, stage))
+    assert masked.loss(off) != pytest.approx(problem.loss(off))
+
+
+def test_the_label_error_refinement_keeps_an_exact_solution(world, target):
+    from dataclasses import replace
+
+    from semcal_ros.loss import LossParams
+    from semcal_ros.optimize import solve
+
+    params = replace(CalibrationParams(), loss=LossParams(outlier_width_px=9.0),
+                     verification=replace(CalibrationParams().verification, starts=1))
+    p = Problem(world, target, camera(), GROUND_TRUTH.translation, params)
+    near = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.5, -0.4, 0.3],
+                                  GROUND_TRUTH.body_rpy_deg() + [0.0, 1.0, -1.0])
+    res = solve(p, near, seed=0)
+    assert translation_error(res.pose, GROUND_TRUTH) < 0.03
+    assert res.loss == pytest.approx(p.loss(res.pose))

@@ -132,3 +132,18 @@ def test_boundary_band_discounts_mismatches_near_the_class_and_matches_the_refer
     assert LabelLoss(target[::2, ::2], band, scale=2).band_px == 2.0
     with pytest.raises(ValueError, match="loss.boundary_band_px"):
         LossParams(boundary_band_px=-1.0)
+
+
+def test_label_outliers_keep_wide_disagreement_and_drop_thin_bands():
+    from semcal_ros.loss import label_outliers
+
+    target = np.full((60, 80), ROAD, np.uint8)
+    target[:30] = BUILDING
+    rendered = target.copy()
+    rendered[30:32] = BUILDING  # a 2 px band along the boundary: what a small pose error draws
+    target[40:55, 10:30] = VEG  # a 15 x 20 px blob of a wrong class in the labels
+    out = label_outliers(rendered, target, width_px=7)
+    assert out[40:55, 10:30].all()  # the blob is taken for a label error
+    assert not out[28:34].any()  # the thin band is not
+    with pytest.raises(ValueError, match="loss.outlier_width_px"):
+        LossParams(outlier_width_px=-2.0)
