@@ -28,6 +28,7 @@ setup(
             "image_segmenter = semcal_ros.ros.nodes.image_segmenter:main",
             "calibrator = semcal_ros.ros.nodes.calibrator:main",
             "bag_player = semcal_ros.ros.nodes.bag_player:main",
+            "calibration_monitor = semcal_ros.ros.nodes.calibration_monitor:main",
         ],
     },
 )

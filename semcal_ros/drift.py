@@ -30,6 +30,7 @@ import numpy as np
 
 from semcal_ros.camera import CameraModel
 from semcal_ros.cloud import LabelledCloud
+from semcal_ros.config import apply_flat, load_node_params
 from semcal_ros.labels import LabelMapping
 from semcal_ros.optimize import Search, _Counter
 from semcal_ros.params import CalibrationParams, ScheduleParams
@@ -51,7 +52,8 @@ class DriftParams:
     bound_deg: float = 0.75  # ... and pitch, yaw (and roll when the engine frees it)
     simplex: float = 0.3  # initial simplex, as a fraction of the bounds
     max_evaluations: int = 50  # renders of the search (plus one at the calibration)
-    min_gain: float = 0.05  # relative loss drop the best pose must bring to count as drift
+    min_gain: float = 0.05  # relative loss drop (beyond the reference's) that counts as drift
+    min_gain_absolute: float = 0.15  # the same without a reference check (semcal check alone)
     min_coverage: float = 0.10  # the map must cover this share of the image's scene pixels
     warn_translation_m: float = 0.03
     warn_rotation_deg: float = 0.1
@@ -64,7 +66,7 @@ class DriftParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"drift.{name} must be a finite number > 0, got {value}")
-        for name in ("min_gain", "min_coverage"):
+        for name in ("min_gain", "min_gain_absolute", "min_coverage"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0 <= value < 1):
                 raise ValueError(f"drift.{name} must be in [0, 1), got {value}")
@@ -79,6 +81,20 @@ class DriftParams:
         if self.error_translation_m > self.bound_m or self.error_rotation_deg > self.bound_deg:
             raise ValueError(f"drift.error_* thresholds must lie inside the search bounds "
                              f"(bound_m {self.bound_m}, bound_deg {self.bound_deg})")
+
+    @classmethod
+    def from_file(cls, path: str | None, node: str = "calibration_monitor") -> "DriftParams":
+        """The ``drift:`` group of a ROS 2 parameter file (config/calibration_monitor.yaml); an
+        unknown name in it is an error naming it."""
+        if not path:
+            return cls()
+        flat = {k[len("drift."):]: v for k, v in load_node_params(path, node).items()
+                if k.startswith("drift.")}
+        try:
+            return apply_flat(cls(), flat, strict=True)
+        except ValueError as exc:
+            raise ValueError(f"{path}: drift.{exc}" if "unknown" not in str(exc)
+                             else f"{path}: drift group: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -182,7 +198,7 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     offset = (raw_vec - calibrated.vector())[search.free] / search.scale
     at_bound = bool(np.any(np.abs(offset) > 0.95))
     seconds = time.perf_counter() - t0
-    counted = gain >= dp.min_gain
+    counted = gain >= (dp.min_gain if reference is not None else dp.min_gain_absolute)
     what = f"drift {dt * 100:.1f} cm / {dr:.2f} deg"
     if counted and at_bound:
         level, why = "error", (f"{what} at the check's bounds ({dp.bound_m * 100:.0f} cm / "
@@ -197,8 +213,9 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
         level, why = "ok", f"{what}, within {dp.warn_translation_m * 100:.0f} cm / " \
                            f"{dp.warn_rotation_deg:g} deg"
     else:
-        level, why = "ok", (f"no better pose nearby ({what} lowers the loss by "
-                            f"{gain * 100:.1f} % < {dp.min_gain * 100:.0f} %)")
+        need = dp.min_gain if reference is not None else dp.min_gain_absolute
+        level, why = "ok", (f"no clearly better pose nearby (the best, {what} away, lowers "
+                            f"the loss by {gain * 100:.1f} % < {need * 100:.0f} %)")
     if not counted:
         dt, dr, vec_d = 0.0, 0.0, np.zeros(3)
     else:

@@ -64,3 +64,29 @@ def test_drift_parameters_are_checked():
         DriftParams(bound_m=0)
     with pytest.raises(ValueError, match="inside the search bounds"):
         DriftParams(error_rotation_deg=2.0)
+
+
+def test_semcal_check_exit_codes(demo_scene: Path, tmp_path: Path):
+    """0 when the calibration holds, 3 for drift (a calibration 0.5 deg off), 1 when it cannot
+    judge (calibration pointing where the map is not) - each with its verdict printed."""
+    truth = files.read_pose(demo_scene / "ground_truth.yaml")
+    off = tmp_path / "off.yaml"
+    files.write_pose(off, turned(truth, 0.5, 0.05))
+    away = tmp_path / "away.yaml"
+    files.write_pose(away, Pose(truth.translation + [500.0, 0.0, 0.0], truth.quaternion))
+    base = [sys.executable, "-m", "semcal_ros.cli", "check", "--map", str(demo_scene / "map.ply"),
+            "--labels", str(demo_scene / "labels.png"),
+            "--camera-info", str(demo_scene / "camera_info.yaml")]
+    runs = {name: subprocess.run(base + ["--calibration", str(path),
+                                         "--reference", str(demo_scene / "labels.png")]
+                                 if name == "ok" else base + ["--calibration", str(path)],
+                                 capture_output=True, text=True, timeout=120)
+            for name, path in (("ok", demo_scene / "ground_truth.yaml"), ("drift", off),
+                               ("away", away))}
+    assert runs["ok"].returncode == 0 and runs["ok"].stdout.startswith("OK"), runs["ok"]
+    assert runs["drift"].returncode == 3 and "drift:" in runs["drift"].stdout, runs["drift"]
+    assert runs["away"].returncode == 1 and "CANNOT JUDGE" in runs["away"].stdout, runs["away"]
+    bad = subprocess.run(base + ["--calibration", str(tmp_path / "missing.yaml")],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 1 and "Traceback" not in bad.stderr and \
+        len(bad.stderr.strip().splitlines()) == 1
