@@ -105,6 +105,60 @@ def test_pose_stream_interpolates_and_refuses_uncovered_times():
         stream.add(3.0, np.diag([1.0, 1.0, -1.0, 1.0]))
 
 
+def test_scans_wait_for_their_poses_and_say_why():
+    from semcal_ros.mapping.time_matching import ScanPoseMatcher
+
+    m = ScanPoseMatcher(queue_size=3, pose_tolerance=0.02, pose_topics="'/odom'")
+    assert m.arrive("scan", 10.0, "s1", now=0.0) == []
+    assert m.next_scan(None) is None  # no pose yet
+    assert m.waiting_for_poses(0.0) == "no pose received yet on '/odom'; 1 scans wait"
+    m.arrive("pose", 9.9, "p1", now=0.1)
+    assert m.take() == (None, [(9.9, "p1")])
+    assert m.next_scan((9.9, 9.9)) is None  # 10.0 is beyond the last pose + tolerance
+    assert m.next_scan((9.9, 9.99)) == (10.0, "s1")
+    for i in range(5):  # poses stop: the queue overflows, once noted (not per scan)
+        notes = m.arrive("scan", 10.1 + 0.1 * i, f"s{i}", now=2.0 + 0.01 * i)
+        if i == 3:
+            assert notes == ["scans dropped (queue full): no pose for 1.9 s (newest at 9.900 s, "
+                             "the newest scan at 10.400 s): 3 scans wait for their poses; is "
+                             "'/odom' publishing?"], notes
+        else:
+            assert notes == [], (i, notes)
+    assert m.dropped_queue == 2 and [s for s, _ in m.scans] == pytest.approx([10.3, 10.4, 10.5])
+
+
+def test_time_going_back_strays_and_jumps():
+    from semcal_ros.mapping.time_matching import ScanPoseMatcher
+
+    m = ScanPoseMatcher(time_jump=1.0, jump_confirm=3)
+    for t in (100.0, 100.1):
+        m.arrive("pose", t, "p", now=t)
+    # two messages far behind, then one in time: the two are strays, nothing reset
+    assert m.arrive("scan", 95.0, "late", now=1.0) == []
+    assert m.arrive("pose", 94.0, "late", now=1.0) == []
+    notes = m.arrive("scan", 100.2, "s", now=1.0)
+    assert len(notes) == 2 and notes[0].startswith("scan at 95.000 s is 5.1 s older than the "
+                                                   "newest (100.100 s): dropped"), notes
+    assert m.strays == 2 and m.reset is None
+    # three in a row: a jump; the old pass's queue goes, the new pass's messages are queued
+    for t in (10.0, 10.1, 10.2):
+        m.arrive("scan" if t != 10.1 else "pose", t, f"new{t}", now=2.0)
+    reset, poses = m.take()
+    assert reset is not None and reset.previous == 100.2 and reset.stamp == 10.2
+    assert reset.reason == "3 messages in a row more than 1 s older than 100.200 s"
+    assert poses == [(10.1, "new10.1")] and [s for s, _ in m.scans] == [10.0, 10.2]
+    # /clock going back is a jump at once
+    assert m.clock(50.0, now=3.0) == [] and m.reset is None
+    m.clock(20.0, now=3.1)
+    assert m.reset.reason == "/clock went back from 50.000 s to 20.000 s"
+    assert m.next_scan((0.0, 100.0)) is None  # the reset is applied first
+    assert m.clear() == 0 and m.reset is None
+    quiet = ScanPoseMatcher(reset_on_time_jump=False)
+    quiet.arrive("scan", 100.0, "s", now=0.0)
+    assert quiet.arrive("scan", 50.0, "s", now=0.0)[0].endswith(
+        "dropped (reset_on_time_jump is false)")
+
+
 def test_evaluation_helpers():
     poses = drive(5)
     noisy = evaluation.perturb_poses(poses, 0.3, 1.0, seed=3)

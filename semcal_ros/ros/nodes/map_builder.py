@@ -25,7 +25,6 @@ from __future__ import annotations
 import sys
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from std_srvs.srv import Trigger
 
 from semcal_interfaces.srv import SaveMap
 from semcal_ros.mapping import MapBuildParams, ScanRejected, StreamingMapBuilder
+from semcal_ros.mapping.time_matching import Reset, ScanPoseMatcher
 from semcal_ros.pose import Pose
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros import qos
@@ -86,11 +86,9 @@ class MapBuilderNodeParams:
 class _Counts:
     received: int = 0
     accepted: int = 0
-    dropped_queue: int = 0  # queue overflow
     dropped_no_pose: int = 0  # older than every pose kept
     ignored_full: int = 0
     resets: int = 0
-    strays: int = 0  # messages far behind the newest, dropped (not enough in a row for a jump)
     rejected: dict[str, int] = field(default_factory=dict)
 
 
@@ -103,25 +101,18 @@ class MapBuilderNode(Node):
         self.last_error = ""
         self.frame = self.opts.map_frame
         self._wake = threading.Condition()
-        # (stamp, message) in arrival order; converted by the worker (the message's buffer is
-        # the most compact form a scan has)
-        self._scans: deque[tuple[float, PointCloud2]] = deque()
-        self._poses: deque[tuple[float, Pose]] = deque()
         self._builder_lock = threading.Lock()
         self._dirty = False
         self._last_publish = 0.0
         self._last_stamp: float | None = None
         self._stop = False
-        # time-jump detection, in arrival order (callbacks): the newest stamp of a scan or pose,
-        # the messages behind it held back, the last /clock, and a reset for the worker to apply
-        self._newest: float | None = None
-        self._behind: list[tuple[str, float, Any]] = []
-        self._last_clock: float | None = None
-        self._reset_request: tuple[float, float, str] | None = None
         self.last_reset = ""
-        self._newest_pose: float | None = None  # stamp, and arrival (monotonic) of the newest pose
-        self._pose_arrival: float | None = None
-        self._queue_warned = 0.0
+        # scans wait for their poses; time going back: strays vs jumps (under _wake). Scans are
+        # queued as messages, converted by the worker (the most compact form a scan has)
+        self.matcher = ScanPoseMatcher(
+            self.opts.time_jump, self.opts.jump_confirm, self.opts.reset_on_time_jump,
+            self.opts.queue_size, self.opts.mapping.pose_tolerance,
+            f"'{self.resolve_topic_name('odom')}' or '{self.resolve_topic_name('pose')}'")
         self.published = (0, 0)  # (points, scans) of the last map published
 
         overrides = qos.overridable()
@@ -185,88 +176,21 @@ class MapBuilderNode(Node):
     def _on_clock(self, msg: Clock) -> None:
         """``/clock`` going back by more than ``time_jump`` is a jump at once (a simulator or
         a looping player said so)."""
-        stamp = conv.stamp_to_seconds(msg.clock)
         with self._wake:
-            previous, self._last_clock = self._last_clock, stamp
-            if previous is None or stamp >= previous - self.opts.time_jump \
-                    or not self.opts.reset_on_time_jump or self._newest is None:
-                return
-            self._jump(f"/clock went back from {previous:.3f} s to {stamp:.3f} s", stamp)
+            notes = self.matcher.clock(conv.stamp_to_seconds(msg.clock), time.monotonic())
+            self._wake.notify()
+        self._note(notes)
 
-    # --- time going back: strays and jumps (callbacks, arrival order) -----------------------
     def _arrive(self, kind: str, stamp: float, item: Any) -> None:
-        """Queue a scan or pose, or hold it back while it is far behind the newest stamp."""
+        """Queue a scan or pose (:class:`ScanPoseMatcher` decides: queued, held back, stray)."""
         with self._wake:
-            newest = self._newest
-            if newest is not None and stamp < newest - self.opts.time_jump:
-                if not self.opts.reset_on_time_jump:
-                    self._stray(kind, stamp, newest, "reset_on_time_jump is false")
-                    return
-                self._behind.append((kind, stamp, item))
-                if len(self._behind) >= self.opts.jump_confirm:
-                    self._jump(f"{len(self._behind)} messages in a row more than "
-                               f"{self.opts.time_jump:g} s older than {newest:.3f} s",
-                               max(s for _, s, _ in self._behind))
-                return
-            for held_kind, held_stamp, _ in self._behind:  # not sustained: strays
-                self._stray(held_kind, held_stamp, newest,
-                            f"time counts as jumped back after {self.opts.jump_confirm} in a row")
-            self._behind = []
-            self._newest = stamp if newest is None else max(newest, stamp)
-            self._enqueue(kind, stamp, item)
+            notes = self.matcher.arrive(kind, stamp, item, time.monotonic())
+            self._wake.notify()
+        self._note(notes)
 
-    def _stray(self, kind: str, stamp: float, newest: float, why: str) -> None:
-        self.counts.strays += 1
-        self._rejected("stray", f"{kind} at {stamp:.3f} s is {newest - stamp:.1f} s older than "
-                                f"the newest ({newest:.3f} s): dropped ({why})")
-
-    def _jump(self, reason: str, newest: float) -> None:
-        """(under ``_wake``) Time went back: drop what is queued of the old pass, ask the
-        worker to reset the map, and queue the held-back messages of the new pass."""
-        previous = self._newest if self._newest is not None else newest
-        self._scans.clear()
-        self._poses.clear()
-        self._reset_request = (previous, newest, reason)
-        self._newest = newest
-        held, self._behind = self._behind, []
-        for kind, stamp, item in held:
-            self._enqueue(kind, stamp, item)
-        self._wake.notify()
-
-    def _enqueue(self, kind: str, stamp: float, item: Any) -> None:
-        """(under ``_wake``) Hand a scan or pose to the worker."""
-        if kind == "pose":
-            self._poses.append((stamp, item))
-            self._newest_pose, self._pose_arrival = stamp, time.monotonic()
-        else:
-            self._scans.append((stamp, item))
-            while len(self._scans) > self.opts.queue_size:
-                self._scans.popleft()
-                self.counts.dropped_queue += 1
-                waiting = self._poses_missing()
-                if waiting and time.monotonic() - self._queue_warned > 5.0:  # not per scan
-                    self._queue_warned = time.monotonic()
-                    self._rejected("queue", f"scans dropped (queue full): {waiting}")
-        self._wake.notify()
-
-    def _poses_missing(self) -> str:
-        """(under ``_wake``) Why queued scans wait, when it is for poses that do not come."""
-        if not self._scans:
-            return ""
-        newest_scan = self._scans[-1][0]
-        if self._newest_pose is not None and \
-                newest_scan <= self._newest_pose + self.opts.mapping.pose_tolerance:
-            return ""
-        if self._newest_pose is None:
-            return (f"no pose received yet on '{self.resolve_topic_name('odom')}' or "
-                    f"'{self.resolve_topic_name('pose')}'; {len(self._scans)} scans wait")
-        age = time.monotonic() - (self._pose_arrival or 0.0)
-        if age < 1.0:
-            return ""
-        return (f"no pose for {age:.1f} s (newest at {self._newest_pose:.3f} s, the newest scan "
-                f"at {newest_scan:.3f} s): {len(self._scans)} scans wait for their poses; is "
-                f"'{self.resolve_topic_name('odom')}' or '{self.resolve_topic_name('pose')}' "
-                f"publishing?")
+    def _note(self, notes: list[str]) -> None:
+        for text in notes:
+            self._rejected("queue" if text.startswith("scans dropped") else "stray", text)
 
     def _rejected(self, kind: str, text: str) -> None:
         self.counts.rejected[kind] = self.counts.rejected.get(kind, 0) + 1
@@ -281,12 +205,11 @@ class MapBuilderNode(Node):
                 self._wake.wait(timeout=0.2)
                 if self._stop:
                     return
-                poses, self._poses = list(self._poses), deque()
-                reset, self._reset_request = self._reset_request, None
+                reset, poses = self.matcher.take()
             try:
                 with self._builder_lock:
                     if reset is not None:
-                        self._apply_reset(*reset)
+                        self._apply_reset(reset)
                     for stamp, pose in poses:
                         self._add_pose(stamp, pose)
                     self._drain_scans()
@@ -302,11 +225,12 @@ class MapBuilderNode(Node):
             return
         self.builder.add_pose(stamp, pose)
 
-    def _apply_reset(self, previous: float, stamp: float, reason: str) -> None:
+    def _apply_reset(self, reset: Reset) -> None:
         """Time went back: forget the map and the poses of the old pass (the worker, with the
         builder lock held)."""
         scans, points = self.builder.scan_count, self.published[0]
-        self.last_reset = (f"time jumped back {previous - stamp:.1f} s ({reason}): map of "
+        self.last_reset = (f"time jumped back {reset.previous - reset.stamp:.1f} s "
+                           f"({reset.reason}): map of "
                            f"{scans} scans ({points} points published) reset")
         self.get_logger().warning(self.last_reset)
         self._reset_builder()
@@ -314,13 +238,7 @@ class MapBuilderNode(Node):
     def _next_scan(self) -> tuple[float, PointCloud2] | None:
         """The oldest queued scan once its pose can be interpolated (or never will be)."""
         with self._wake:
-            if not self._scans or self._reset_request is not None:
-                return None  # a reset is due first
-            stamp = self._scans[0][0]
-            span = self.builder.poses.span()
-            if span is None or stamp > span[1] + self.opts.mapping.pose_tolerance:
-                return None  # its pose has not arrived yet
-            return self._scans.popleft()
+            return self.matcher.next_scan(self.builder.poses.span())
 
     def _drain_scans(self) -> None:
         while (item := self._next_scan()) is not None:
@@ -394,11 +312,7 @@ class MapBuilderNode(Node):
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
         with self._wake:
-            dropped = len(self._scans)
-            self._scans.clear()
-            self._poses.clear()
-            self._behind = []
-            self._reset_request = None
+            dropped = self.matcher.clear()
         with self._builder_lock:
             self._reset_builder()
         self._maybe_publish(force=True)
@@ -411,14 +325,15 @@ class MapBuilderNode(Node):
     def _report(self) -> tuple[Level, str, dict[str, Any]]:
         c = self.counts
         with self._wake:
-            queued = len(self._scans)
-            waiting = self._poses_missing()
+            queued = len(self.matcher.scans)
+            waiting = self.matcher.waiting_for_poses(time.monotonic())
+            dropped_queue, strays = self.matcher.dropped_queue, self.matcher.strays
         values = {
             "scans_received": c.received, "scans_accepted": c.accepted,
-            "scans_queued": queued, "dropped_queue_full": c.dropped_queue,
+            "scans_queued": queued, "dropped_queue_full": dropped_queue,
             "dropped_no_pose": c.dropped_no_pose, "ignored_map_full": c.ignored_full,
             "resets": c.resets, "last_reset": self.last_reset or "none",
-            "strays_dropped": c.strays, "map_points": self.published[0],
+            "strays_dropped": strays, "map_points": self.published[0],
             "map_scans": self.published[1],
             "poses": len(self.builder.poses), "last_error": self.last_error or "none",
         }
@@ -428,8 +343,8 @@ class MapBuilderNode(Node):
         if c.received and not c.accepted:
             return Level.WARN, self.last_error or "no scan accepted yet (waiting for poses?)", \
                 values
-        if c.dropped_queue:
-            return Level.WARN, f"{c.dropped_queue} scans dropped (queue full)", values
+        if dropped_queue:
+            return Level.WARN, f"{dropped_queue} scans dropped (queue full)", values
         return Level.OK, f"{c.accepted} scans in the map", values
 
 
