@@ -72,6 +72,8 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
         assert watcher.get("calibrator")["cameras"] == f"{a}, {b}"
         tf_static: list[Any] = []
         node.create_subscription(TFMessage, "/tf_static", tf_static.append, qos.latched())
+        overlays: list[Any] = []
+        node.create_subscription(Image, "/calibration/overlay", overlays.append, qos.latched())
         client = CalibrateClient(node)
         client.wait_for_server(20)
 
@@ -133,6 +135,18 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
         assert set(held) == set(results)
         for frame, transform in results.items():
             assert held[frame].transform == transform.transform
+
+        # the overlay of the last result: that camera's picture, the verdict's banner on top
+        spin_until(executor, lambda: overlays and overlays[-1].header.frame_id == f"{b}_optical",
+                   10, f"{b}'s overlay")
+        picture = conv.image_to_rgb(overlays[-1])
+        assert picture.shape == (msgs[cams[1]["topics"]["camera_info"]].height,
+                                 msgs[cams[1]["topics"]["camera_info"]].width, 3)
+        from semcal_ros.overlay import VERDICT_COLOURS
+
+        banner = np.median(picture[:6, :40].reshape(-1, 3), axis=0)  # left of the text
+        nearest = min(VERDICT_COLOURS, key=lambda v: np.abs(banner - VERDICT_COLOURS[v]).sum())
+        assert nearest == second.result.verdict, (banner, second.result.verdict)
 
         # per-camera diagnostics carry the verdict and its figures; the level follows it
         watcher.latest.clear()

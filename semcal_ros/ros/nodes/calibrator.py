@@ -311,17 +311,15 @@ class CalibratorNode(Node):
                  ) -> np.ndarray:
         """The map rendered at the result over the camera's newest image (the label colours
         without one), exactly as the engine renders it, with the verdict drawn on it."""
-        from semcal_ros import overlay
+        from semcal_ros.overlay import annotate_quality, blend_labels
 
         model = problem.camera
         rgb = camera.snapshot().rgb
         if rgb is None or rgb.shape[:2] != (model.height, model.width):
             rgb = colorize(labels)  # no matching camera image: draw over the labels
-        picture = overlay.blend_labels(rgb, problem.render(result.pose))
-        annotate = getattr(overlay, "annotate_quality", None)  # the lead's, being added
-        if result.quality is not None and annotate is not None:
-            picture = annotate(picture, result.quality)
-        return picture
+        picture = blend_labels(rgb, problem.render(result.pose))
+        return annotate_quality(picture, result.quality) if result.quality is not None \
+            else picture
 
     def _answer(self, handle: Any, job: EngineJob, camera: CameraInputs, request: Request
                 ) -> Calibrate.Result:
