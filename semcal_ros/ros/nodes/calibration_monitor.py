@@ -114,6 +114,7 @@ class CalibrationMonitorNode(Node):
         self._lock = threading.Lock()
         self._map: HeldMap | None = None
         self._map_refusal = ""
+        self._tf_static: dict[str, TransformStamped] = {}
         self.cameras = {t.name: _Camera(CameraInputs(t, self.get_logger().error,
                                                      self.resolve_topic_name))
                         for t in camera_topics(self.opts.cameras)}
@@ -187,11 +188,11 @@ class CalibrationMonitorNode(Node):
                 cam.reference, cam.referenced = None, False
         self.get_logger().info(f"map received: {held.points} points")
 
-    def _camera_of(self, frame_id: str) -> _Camera | None:
+    def _camera_of(self, frame_id: str, unframed: bool = True) -> _Camera | None:
         for cam in self.cameras.values():
             if cam.inputs.answers_to(frame_id):
                 return cam
-        if len(self.cameras) == 1 and "" in self.cameras:
+        if unframed and len(self.cameras) == 1 and "" in self.cameras:
             cam = self.cameras[""]
             # the single camera before its CameraInfo came: the calibrator's usual frame
             snap = cam.inputs.snapshot()
@@ -203,16 +204,28 @@ class CalibrationMonitorNode(Node):
         self._take_transform(msg, "calibration/transform")
 
     def _on_tf_static(self, msg: Any) -> None:
-        for tf in msg.transforms:
-            if tf.header.frame_id == self._map_frame():
-                self._take_transform(tf, "/tf_static", quiet=True)
+        # kept: /tf_static is latched and comes once, maybe before a camera's CameraInfo says
+        # which frame is its own
+        with self._lock:
+            self._tf_static = {tf.child_frame_id: tf for tf in msg.transforms
+                               if tf.header.frame_id == self._map_frame_locked()}
+        self._match_tf_static()
+
+    def _match_tf_static(self) -> None:
+        with self._lock:
+            pending = list(self._tf_static.values())
+        for tf in pending:
+            self._take_transform(tf, "/tf_static", quiet=True)
 
     def _map_frame(self) -> str:
         with self._lock:
-            return self._map.frame if self._map is not None else self.opts.map_frame
+            return self._map_frame_locked()
+
+    def _map_frame_locked(self) -> str:
+        return self._map.frame if self._map is not None else self.opts.map_frame
 
     def _take_transform(self, msg: TransformStamped, source: str, quiet: bool = False) -> None:
-        cam = self._camera_of(msg.child_frame_id)
+        cam = self._camera_of(msg.child_frame_id, unframed=not quiet)
         if cam is None:
             if not quiet:
                 self.get_logger().warning(f"ignoring {source}: no monitored camera has frame "
@@ -244,6 +257,7 @@ class CalibrationMonitorNode(Node):
 
     # --- the checks ---------------------------------------------------------------------------
     def check_all(self) -> None:
+        self._match_tf_static()
         for cam in self.cameras.values():
             try:
                 self.check(cam)
