@@ -40,7 +40,7 @@ class LossParams:
     # class costs in proportion to the distance (a truncated distance transform of the target per
     # class); 0 = every mismatch costs in full (the paper). Boundaries a network drew a few pixels
     # off then cost little, and the loss near the optimum becomes quadratic instead of V-shaped.
-    boundary_band_px: float = 0.0
+    boundary_band_px: float = 4.0
     # px (full resolution): regions where the map and the labels disagree at the first result and
     # that are at least this wide (a morphological opening of the disagreement) are taken for
     # label errors (a blob of a wrong class, a missed object) and left out of a second refinement;

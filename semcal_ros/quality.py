@@ -50,8 +50,8 @@ class QualityParams:
     step_deg: float = 0.02  # first probe about a rotation axis
     bisections: int = 2  # refinements of each axis's bracket
     stage: int = -1  # schedule stage whose resolution the probes use (-1: full resolution)
-    max_translation_m: float = 0.05  # an axis looser than this is unconstrained: inconclusive
-    max_rotation_deg: float = 0.1
+    max_translation_m: float = 0.08  # an axis looser than this is unconstrained: inconclusive
+    max_rotation_deg: float = 0.15
     min_agreement: float = 0.6  # below: failed (the map is not what the camera sees)
     min_coverage: float = 0.15  # below: inconclusive (too little of the image to judge)
     disagree_translation_m: float = 0.3  # a rival basin this far away with a loss as low: failed

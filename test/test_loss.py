@@ -7,6 +7,8 @@ from semcal_ros.labels import CITYSCAPES_ID, INVALID, SKY, palette_array
 from semcal_ros.loss import LabelLoss, LossParams, loss_reference, pair_table
 
 ROAD, BUILDING, VEG = CITYSCAPES_ID["road"], CITYSCAPES_ID["building"], CITYSCAPES_ID["vegetation"]
+#: The paper's loss: every mismatch costs its full colour distance (the default adds a boundary band).
+PAPER = LossParams(boundary_band_px=0.0)
 
 
 def colour_l2(a, b):
@@ -31,12 +33,12 @@ def test_mean_over_valid_pixels_and_masking():
     rendered[0] = INVALID  # nothing rendered over the sky: valid match, zero cost
     rendered[3, :2] = BUILDING  # two wrong pixels
     rendered[2, :4] = INVALID  # holes over non-sky: masked, not counted
-    loss = LabelLoss(target, LossParams())
+    loss = LabelLoss(target, PAPER)
     value, coverage = loss.evaluate(rendered)
     n_valid = 40 - 5 - 4
     assert value == pytest.approx(2 * colour_l2(BUILDING, ROAD) / n_valid)
     assert coverage == pytest.approx((25 - 4) / 25)
-    ref, ref_cov = loss_reference(rendered, target, loss.table, LossParams())
+    ref, ref_cov = loss_reference(rendered, target, loss.table, PAPER)
     assert ref == pytest.approx(value)
     assert ref_cov == pytest.approx(coverage)
 
@@ -58,7 +60,7 @@ def test_uncovered_cost_counts_holes_over_map_classes():
     # and loses once uncovered map classes cost something
     away = rendered.copy()
     away[3] = INVALID
-    assert LabelLoss(target, LossParams())(away) < LabelLoss(target, LossParams())(rendered)
+    assert LabelLoss(target, PAPER)(away) < LabelLoss(target, PAPER)(rendered)
     assert LabelLoss(target, params)(away) > value
     with pytest.raises(ValueError, match="uncovered_cost"):
         LossParams(uncovered_cost=-1.0)
@@ -69,18 +71,18 @@ def test_beta_normalisation_does_not_reward_masking():
     target = np.full((10, 10), ROAD, np.uint8)
     rendered = target.copy()
     rendered[:, 0] = BUILDING
-    full = LabelLoss(target, LossParams())(rendered)
+    full = LabelLoss(target, PAPER)(rendered)
     holes = rendered.copy()
     holes[:5, 1:] = INVALID
     holes[:5, 0] = INVALID
-    assert LabelLoss(target, LossParams())(holes) == pytest.approx(full)
+    assert LabelLoss(target, PAPER)(holes) == pytest.approx(full)
 
 
 def test_rendered_map_over_target_sky_costs():
     target = np.full((2, 2), SKY, np.uint8)
     target[1] = ROAD
     rendered = np.full((2, 2), ROAD, np.uint8)
-    value = LabelLoss(target, LossParams())(rendered)
+    value = LabelLoss(target, PAPER)(rendered)
     assert value == pytest.approx(2 * colour_l2(ROAD, SKY) / 4)
 
 
@@ -121,7 +123,7 @@ def test_boundary_band_discounts_mismatches_near_the_class_and_matches_the_refer
     # building drawn far from any building: full cost
     far = target.copy()
     far[15:17, 30:32] = BUILDING
-    paper, banded = LabelLoss(target, LossParams()), LabelLoss(target, band)
+    paper, banded = LabelLoss(target, PAPER), LabelLoss(target, band)
     assert banded(target) == 0.0
     assert banded(shifted) < 0.5 * paper(shifted)  # near the boundary: discounted
     assert banded(far) == pytest.approx(paper(far))  # 4+ px away: the full colour distance
