@@ -144,7 +144,9 @@ def _banded(rendered: np.ndarray, target: np.ndarray, table: np.ndarray, band: f
 
 
 @numba.njit(cache=True, nogil=True)
-def _loss_kernel_banded(rendered, target, table, start, dist):
+def _loss_kernel(rendered, target, table, start, dist, banded):
+    """Sums over the valid pixels; with ``banded`` a mismatch is weighted by ``dist`` (the
+    rendered class's distance in the target, 255 = the band or farther)."""
     total = 0.0
     n_valid = 0
     n_scene = 0
@@ -161,31 +163,11 @@ def _loss_kernel_banded(rendered, target, table, start, dist):
             n_covered += 1
         elif r == INVALID:
             r = SKY
-        if r != t:
-            total += table[r, t] * dist[r, p] * (1.0 / 255.0)
-        n_valid += 1
-    return total, n_valid, n_scene, n_covered
-
-
-@numba.njit(cache=True, nogil=True)
-def _loss_kernel(rendered, target, table, start):
-    total = 0.0
-    n_valid = 0
-    n_scene = 0
-    n_covered = 0
-    for p in range(start, target.shape[0]):
-        t = target[p]
-        if t == INVALID:
-            continue
-        r = rendered[p]
-        if t != SKY:
-            n_scene += 1
-            if r == INVALID:
-                continue
-            n_covered += 1
-        elif r == INVALID:
-            r = SKY
-        total += table[r, t]
+        if banded:
+            if r != t:
+                total += table[r, t] * dist[r, p] * (1.0 / 255.0)
+        else:
+            total += table[r, t]
         n_valid += 1
     return total, n_valid, n_scene, n_covered
 
@@ -201,8 +183,9 @@ class LabelLoss:
         self.table = pair_table(params.kind, params.huber_delta)
         self.start = int(round(params.crop_top * self.shape[0])) * self.shape[1]
         self.band_px = params.boundary_band_px / scale
-        self.dist = (class_distances(target_aligned, self.band_px) if self.band_px > 0
-                     else None)
+        self.banded = self.band_px > 0
+        self.dist = (class_distances(target_aligned, self.band_px) if self.banded
+                     else np.zeros((1, 1), np.uint8))
 
     def __call__(self, rendered: np.ndarray) -> float:
         return self.evaluate(rendered)[0]
@@ -211,13 +194,9 @@ class LabelLoss:
         """(loss, coverage of the target's non-sky pixels by rendered points)."""
         if rendered.shape != self.shape:
             raise ValueError(f"rendered image {rendered.shape} != target {self.shape}")
-        flat = np.ascontiguousarray(rendered).ravel()
-        if self.dist is not None:
-            total, n_valid, n_scene, n_covered = _loss_kernel_banded(
-                flat, self.target, self.table, self.start, self.dist)
-        else:
-            total, n_valid, n_scene, n_covered = _loss_kernel(
-                flat, self.target, self.table, self.start)
+        total, n_valid, n_scene, n_covered = _loss_kernel(
+            np.ascontiguousarray(rendered).ravel(), self.target, self.table, self.start,
+            self.dist, self.banded)
         coverage = n_covered / n_scene if n_scene else 0.0
         if self.params.uncovered_cost > 0:
             n_valid += n_scene - n_covered
