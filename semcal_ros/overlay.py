@@ -73,8 +73,9 @@ def annotate_quality(rgb: np.ndarray, report: "QualityReport") -> np.ndarray:
     lines = [
         f"{report.verdict.upper()}: {report.reason}",
         f"agreement {report.agreement * 100:.0f} %   coverage {report.coverage * 100:.0f} %",
-        "uncertainty x/y/z " + "/".join(f"{v * 100:.1f}" for v in ut) + " cm   roll/pitch/yaw "
-        + "/".join(f"{v:.2f}" for v in ur) + " deg",
+        "uncertainty x/y/z " + "/".join(f"{v * 100:.1f}" for v in ut) + " cm   "
+        + ("roll/pitch/yaw " + "/".join(f"{v:.2f}" for v in ur) if report.roll_free
+           else "pitch/yaw " + "/".join(f"{v:.2f}" for v in ur[1:]) + " (roll fixed)") + " deg",
     ]
     band = min(h, line * len(lines) + 8)
     colour = np.array(VERDICT_COLOURS.get(report.verdict, (90, 90, 90)), np.float32)

@@ -24,12 +24,12 @@ thresholds and how they were chosen on scenes are in docs/quality.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
-from semcal_ros.labels import CITYSCAPES, INVALID
+from semcal_ros.labels import CITYSCAPES, INVALID, SKY
 from semcal_ros.pose import Pose, rotation_error_deg, translation_error
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -87,7 +87,7 @@ class QualityReport:
     spread_translation_m: float = 0.0
     spread_rotation_deg: float = 0.0
     evaluations: int = 0  # loss evaluations the report cost
-    notes: tuple[str, ...] = field(default=())
+    roll_free: bool = False  # roll searched (else held fixed, and its uncertainty not judged)
 
     def to_dict(self) -> dict:
         """The ``quality:`` group of a result YAML."""
@@ -108,7 +108,8 @@ class QualityReport:
 
     def summary(self) -> str:
         """One line for logs and the overlay."""
-        ut, ur = self.uncertainty_translation_m, self.uncertainty_rpy_deg
+        ut = self.uncertainty_translation_m
+        ur = self.uncertainty_rpy_deg if self.roll_free else self.uncertainty_rpy_deg[1:]
         return (f"{self.verdict.upper()}: {self.reason}; agreement {self.agreement * 100:.0f} %, "
                 f"coverage {self.coverage * 100:.0f} %, +- {max(ut) * 100:.1f} cm / "
                 f"{max(ur):.2f} deg")
@@ -128,8 +129,9 @@ def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 
     same = r == t
     total = np.bincount(t, minlength=256)
     hits = np.bincount(t[same], minlength=256)
+    # per class of the labels; not sky: the map has no sky to draw, so it could only disagree
     per_class = {CITYSCAPES.get(int(c), str(int(c))): float(hits[c] / total[c])
-                 for c in np.nonzero(total)[0]}
+                 for c in np.nonzero(total)[0] if c != SKY}
     return float(same.mean()), per_class
 
 
@@ -232,7 +234,7 @@ def assess(problem: "Problem", pose: Pose, runs: Sequence["RunResult"] = (),
         uncertainty_rpy_deg=tuple(float(v) for v in unc[3:]), unconstrained=loose,
         spread_translation_m=float(np.sqrt(np.mean(np.square(dt)))) if dt else 0.0,
         spread_rotation_deg=float(np.sqrt(np.mean(np.square(dr)))) if dr else 0.0,
-        evaluations=spent + 2)
+        evaluations=spent + 2, roll_free=sp.free_roll)
 
 
 __all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
