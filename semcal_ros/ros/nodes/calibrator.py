@@ -439,8 +439,9 @@ class CalibratorNode(Node):
         s = self.goals.state(name)
         if s is None:
             return "idle"
-        return f"running {s.goal_id} ({s.stage}, {s.evaluations} evaluations)" if s.running \
-            else f"queued {s.goal_id}"
+        if s.stage == "queued":
+            return f"queued {s.goal_id}"
+        return f"running {s.goal_id} ({s.stage}, {s.evaluations} evaluations)"
 
     def _map_values(self) -> dict[str, Any]:
         with self._lock:
