@@ -124,7 +124,7 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
             print(f"{cam['name']}: {dt * 100:.1f} cm, {dr:.3f} deg, verdict {r.verdict}")
             # the cheap schedule gets most of the way from ~1 m off (benchmarks/bench_multicam.py
             # compares the full procedure with each camera calibrated alone)
-            assert dt < 0.3 * translation_error(start, truth) and dr < 0.6, (dt, dr)
+            assert dt < 0.3 * translation_error(start, truth) and dr < 0.8, (dt, dr)
             assert_quality(r)
             results[cam["frame_id"]] = r.transform
 
