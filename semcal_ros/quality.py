@@ -44,14 +44,14 @@ VERDICTS = ("good", "inconclusive", "failed")
 class QualityParams:
     """Thresholds of the verdict (``engine.quality.*``); docs/quality.md says how each was chosen."""
 
-    rise: float = 0.05  # relative loss rise that bounds an axis's uncertainty
+    rise: float = 0.10  # relative loss rise that bounds an axis's uncertainty
     rise_abs: float = 1e-4  # plus this absolute rise (a loss near 0 still has a noise floor)
     step_m: float = 0.01  # first probe along a translation axis; doubled until the loss rises
     step_deg: float = 0.02  # first probe about a rotation axis
     bisections: int = 2  # refinements of each axis's bracket
     stage: int = -1  # schedule stage whose resolution the probes use (-1: full resolution)
-    max_translation_m: float = 0.08  # an axis looser than this is unconstrained: inconclusive
-    max_rotation_deg: float = 0.15
+    max_translation_m: float = 0.10  # an axis looser than this is unconstrained: inconclusive
+    max_rotation_deg: float = 0.2
     min_agreement: float = 0.6  # below: failed (the map is not what the camera sees)
     min_coverage: float = 0.15  # below: inconclusive (too little of the image to judge)
     disagree_translation_m: float = 0.3  # a rival basin this far away with a loss as low: failed
