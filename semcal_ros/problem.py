@@ -57,10 +57,10 @@ class Problem:
     its local origin lies: the initial camera position for one calibration, any fixed point near
     the camera when many starts share one problem. ``prepared`` is a map already prepared (by
     :func:`~semcal_ros.render.prepare_map` with the same label mapping) to share between problems
-    instead of preparing ``map_cloud`` again; ``center`` is then ignored.
+    instead of preparing ``map_cloud`` again (which may then be None); ``center`` is then ignored.
     """
 
-    def __init__(self, map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel,
+    def __init__(self, map_cloud: LabelledCloud | None, target: np.ndarray, camera: CameraModel,
                  center: np.ndarray, params: CalibrationParams | None = None,
                  mapping: LabelMapping | None = None, prepared: PreparedMap | None = None) -> None:
         self.params = params or CalibrationParams()
@@ -73,7 +73,10 @@ class Problem:
         if target.shape != (camera.height, camera.width):
             raise ValueError(f"label image is {target.shape[1]}x{target.shape[0]} but camera_info "
                              f"says {camera.width}x{camera.height}")
-        if len(map_cloud) and not np.all(np.isfinite(map_cloud.xyz)):
+        if prepared is None and map_cloud is None:
+            raise ValueError("a problem needs a map: a cloud or a prepared map")
+        if map_cloud is not None and prepared is None and len(map_cloud) and \
+                not np.all(np.isfinite(map_cloud.xyz)):
             bad = int((~np.all(np.isfinite(map_cloud.xyz), axis=1)).sum())
             raise ValueError(f"map contains {bad} NaN or infinite points")
         center = np.asarray(center, dtype=float)

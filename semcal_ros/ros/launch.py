@@ -50,11 +50,13 @@ class DomainLock:
 
 
 def ros_environment(domain: int) -> dict[str, str]:
-    """This process's environment for a node in ``domain``, traffic kept on the machine."""
+    """This process's environment for a node in ``domain``, traffic kept on the machine unless
+    the caller's environment already chose a discovery range (two hosts: SUBNET and
+    ROS_STATIC_PEERS, docs/two-hosts.md)."""
     env = dict(os.environ)
-    env.update({"ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-                "PYTHONUNBUFFERED": "1", "RCUTILS_LOGGING_BUFFERED_STREAM": "0",
-                "RCUTILS_COLORIZED_OUTPUT": "0"})
+    env.update({"ROS_DOMAIN_ID": str(domain), "PYTHONUNBUFFERED": "1",
+                "RCUTILS_LOGGING_BUFFERED_STREAM": "0", "RCUTILS_COLORIZED_OUTPUT": "0"})
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
     profile = fastdds_profile()
     if profile is not None:

@@ -83,6 +83,11 @@ def run_node(make_node: Callable[[], "object"], threads: int | Callable[[Any], i
         executor.add_node(node)
         try:
             executor.spin()
+        except Exception:  # noqa: BLE001 - rclpy raises its own RCLError at Ctrl-C
+            # SIGINT can invalidate the context while the executor waits ("failed to initialize
+            # wait set: the given context is not valid"): that is the shutdown, not a failure
+            if rclpy.ok():
+                raise
         finally:
             executor.shutdown(timeout_sec=1.0)
     except (KeyboardInterrupt, ExternalShutdownException):
