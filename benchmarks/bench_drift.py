@@ -101,7 +101,7 @@ def main() -> None:
             checker = DriftChecker(cloud, camera, truth, drift=dp)
             reference = checker.check(labels)
             world = scene_world(kind, 0, variant, OPTIONS)
-            noise = 0 if variant == "noisy_labels" else None  # the scene's own realisation
+            noise = "scene" if variant == "noisy_labels" else None  # the scene's own realisation
             if kind == "junction" and variant == "ideal":
                 for _ in range(10):
                     t0 = time.perf_counter()

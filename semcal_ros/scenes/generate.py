@@ -455,11 +455,14 @@ def scene_world(kind: str, seed: int, variant: str, options: SceneOptions) -> Sc
 
 
 def camera_view(kind: str, seed: int, variant: str, options: SceneOptions, pose: Pose,
-                noise_seed: int | None = None, world: SceneWorld | None = None) -> np.ndarray:
+                noise_seed: int | str | None = None, world: SceneWorld | None = None,
+                camera: int = 0) -> np.ndarray:
     """The label image a scene's camera would see from ``pose`` (map frame): what a camera that
     was knocked or re-aimed delivers (drift benchmarks, the demo). With ``noise_seed`` the
     labels get the noisy_labels variant's segmentation noise drawn from that seed (a new network
-    output per frame); ``world`` reuses a :func:`scene_world` already built."""
+    output per frame); ``"scene"``: the noise realisation the scene's rig camera ``camera``
+    got (the scene's own label image when ``pose`` is its ground truth); ``world`` reuses a
+    :func:`scene_world` already built."""
     sw = world or scene_world(kind, seed, variant, options)
     layout_pose = pose
     if not sw.frame.identity:  # map frame -> layout frame
@@ -468,7 +471,8 @@ def camera_view(kind: str, seed: int, variant: str, options: SceneOptions, pose:
                                        rot.T @ (pose.translation - np.asarray(sw.frame.shift)))
     labels, _ = camera_images(sw.world, layout_pose, actors_at(sw.image_actors, sw.t_camera),
                               replace(options, supersample=1), noise_seed is not None,
-                              np.random.default_rng(noise_seed), np.random.default_rng(0),
+                              _rng(seed, kind, "noise", camera) if noise_seed == "scene"
+                              else np.random.default_rng(noise_seed), np.random.default_rng(0),
                               rgb=False)
     return labels
 
