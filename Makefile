@@ -1,5 +1,5 @@
 # Two commands do all the set-up on a fresh Debian 12 / Python 3.11 machine:
-#   make demo   calibrate the built-in demo scene and print the result
+#   make demo   two cameras of a demo junction calibrated, one knocked, the drift watch's WARN
 #   make test   run the test suite
 VENV ?= .venv
 PY := $(VENV)/bin/python
