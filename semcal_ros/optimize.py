@@ -187,12 +187,13 @@ class Search:
                 break
         return center, loss
 
-    def refine(self, center: np.ndarray, loss: float, run: int, label: str
-               ) -> tuple[np.ndarray, float]:
-        """From a coarse result: the first stage's restarts, then every later stage and its
-        restarts."""
+    def refine(self, center: np.ndarray, loss: float, run: int, label: str,
+               restart_first: bool = True) -> tuple[np.ndarray, float]:
+        """From a coarse result: the first stage's restarts (unless ``restart_first`` is False),
+        then every later stage and its restarts."""
         stages = self.problem.stages
-        center, loss = self.restart(0, center, loss, run, label)
+        if restart_first:
+            center, loss = self.restart(0, center, loss, run, label)
         for k in range(1, len(stages)):
             self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
                                      f"(1/{stages[k].scale} resolution)")
@@ -257,15 +258,9 @@ def _without_label_outliers(problem: Problem, search: Search, pose: Pose, loss: 
                             problem.params.loss.outlier_width_px)
     if not ignore.any():
         return pose, loss
-    clean = problem.masked(ignore)
-    polish = Search(clean, search.counter)
-    center = pose.vector()
-    for k in range(1, len(problem.stages)):
-        search.counter.begin_stage(f"without label errors ({ignore.mean() * 100:.1f} % of the "
-                                   f"image), stage {k + 1}/{len(problem.stages)}")
-        center, _ = polish.nelder_mead(k, center, run)
-        center, _ = polish.restart(k, center, clean.loss(Pose.from_vector(center), k), run,
-                                   "without label errors")
+    center, _ = Search(problem.masked(ignore), search.counter).refine(
+        pose.vector(), loss, run, f"without label errors ({ignore.mean() * 100:.1f} % of the "
+        "image)", restart_first=False)
     new = Pose.from_vector(center)
     return new, problem.loss(new)
 

@@ -96,8 +96,9 @@ class Problem:
             if stage.scale not in self._levels:
                 self._levels[stage.scale] = self._level(stage.scale)
 
-    def _level(self, scale: int) -> Level:
-        setup = view_setup(self.camera, self.pmap, self.params.render, scale)
+    def _level(self, scale: int, setup: ViewSetup | None = None) -> Level:
+        """The loss against ``self.target`` at ``scale``; ``setup`` reuses a view set-up."""
+        setup = setup or view_setup(self.camera, self.pmap, self.params.render, scale)
         cam = setup.camera
         off = scale // 2  # the sample nearest the centre of each scale x scale block
         target = self.target[off::scale, off::scale][:cam.height, :cam.width]
@@ -125,13 +126,8 @@ class Problem:
         their loss tables are rebuilt."""
         other = copy.copy(self)
         other.target = np.where(ignore, INVALID, self.target).astype(np.uint8)
-        other._levels = {}
-        for scale, level in self._levels.items():
-            off = scale // 2
-            cam = level.setup.camera
-            small = other.target[off::scale, off::scale][:cam.height, :cam.width]
-            other._levels[scale] = Level(scale, level.setup, LabelLoss(
-                np.ascontiguousarray(small), self.params.loss, scale))
+        other._levels = {scale: other._level(scale, level.setup)
+                         for scale, level in self._levels.items()}
         return other
 
     def degenerate(self, evaluation: Evaluation) -> bool:

@@ -136,17 +136,19 @@ def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 
 
 
 def axis_uncertainty(problem: "Problem", pose: Pose, params: QualityParams,
-                     bounds: Sequence[float], on_probe: Callable[[], None] | None = None
-                     ) -> tuple[np.ndarray, int]:
+                     bounds: Sequence[float], on_probe: Callable[[], None] | None = None,
+                     loss0: float | None = None) -> tuple[np.ndarray, int]:
     """Per axis (x, y, z in m; roll, pitch, yaw in deg): how far the pose can move along it, in
     either direction, before the loss at ``params.stage`` rises by the set amount. Probes double
     from ``step`` until the loss rises or the bound is passed, then bisect the bracket; the larger
     direction counts. Returns the six values and the evaluations spent. ``on_probe`` is called
-    before every probe (the search's cancellation check raises from it)."""
+    before every probe (the search's cancellation check raises from it); ``loss0``, the loss at
+    ``pose`` at the probes' stage, when the caller has it already."""
     base = pose.vector()
-    loss0 = problem.loss(pose, params.stage)
+    spent = 0
+    if loss0 is None:
+        loss0, spent = problem.loss(pose, params.stage), 1
     limit = loss0 * (1.0 + params.rise) + params.rise_abs
-    spent = 1
     out = np.zeros(6)
     for axis in range(6):
         rotation = axis >= 3
@@ -190,13 +192,14 @@ def assess(problem: "Problem", pose: Pose, runs: Sequence["RunResult"] = (),
     verification runs of the calibration (empty for a pose from elsewhere, e.g. a drift check)."""
     qp = params or problem.params.quality
     sp = problem.params.search
-    rendered = problem.render(pose)
-    target = problem.level(-1).loss
-    agreement, per_class = label_agreement(rendered, target.target.reshape(target.shape),
+    rendered = problem.render(pose)  # one full-resolution render serves agreement and loss
+    agreement, per_class = label_agreement(rendered, problem.target,
                                            problem.params.loss.crop_top)
-    coverage = problem.evaluate(pose).coverage
+    loss_full, coverage = problem.level(-1).loss.evaluate(rendered)
+    at_full = problem.stages[qp.stage].scale == problem.stages[-1].scale
     bounds = (*sp.bound_xyz, sp.bound_roll_deg, sp.bound_pitch_deg, sp.bound_yaw_deg)
-    unc, spent = axis_uncertainty(problem, pose, qp, bounds, on_probe)
+    unc, spent = axis_uncertainty(problem, pose, qp, bounds, on_probe,
+                                  loss_full if at_full else None)
     loose = tuple(AXES[i] for i in range(6)
                   if unc[i] > (qp.max_translation_m if i < 3 else qp.max_rotation_deg))
     if not sp.free_roll:
@@ -234,7 +237,7 @@ def assess(problem: "Problem", pose: Pose, runs: Sequence["RunResult"] = (),
         uncertainty_rpy_deg=tuple(float(v) for v in unc[3:]), unconstrained=loose,
         spread_translation_m=float(np.sqrt(np.mean(np.square(dt)))) if dt else 0.0,
         spread_rotation_deg=float(np.sqrt(np.mean(np.square(dr)))) if dr else 0.0,
-        evaluations=spent + 2, roll_free=sp.free_roll)
+        evaluations=spent + 1, roll_free=sp.free_roll)
 
 
 __all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
