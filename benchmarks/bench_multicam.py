@@ -22,7 +22,6 @@ import os
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -30,19 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_calibrator_memory import rss_mb  # noqa: E402
 
-
-def camera_messages(scene: Path, cam: dict) -> dict:
-    from semcal_ros.io.files import read_camera_info, read_label_image, read_rgb_image
-    from semcal_ros.ros import conversions as conv
-
-    folder = scene / cam["folder"]
-    camera = replace(read_camera_info(folder / "camera_info.yaml"), frame_id=cam["frame_id"])
-    header = conv.make_header(camera.frame_id, 1.0)
-    return {cam["topics"]["labels"]: conv.numpy_to_image(
-                read_label_image(folder / "labels.png"), "mono8", header),
-            cam["topics"]["image_raw"]: conv.numpy_to_image(
-                read_rgb_image(folder / "image.png"), "rgb8", header),
-            cam["topics"]["camera_info"]: conv.model_to_camera_info(camera, header)}
+from semcal_ros.ros.scene_messages import camera_messages  # noqa: E402
 
 
 def run_node(scene: Path, cams: list[dict], engine: dict, logs: Path) -> dict:
@@ -69,7 +56,7 @@ def run_node(scene: Path, cams: list[dict], engine: dict, logs: Path) -> dict:
         executor.add_node(node)
         msgs = {}
         for cam in cams:
-            msgs.update(camera_messages(scene, cam))
+            msgs.update(camera_messages(scene, cam, 1.0))
         pubs = {t: node.create_publisher(CameraInfo if "info" in t else Image, t,
                                          qos.reliable(1)) for t in msgs}
         watcher = DiagnosticsWatcher(node)

@@ -5,8 +5,6 @@ and carry a verdict, and /tf_static's latest TFMessage holds both transforms."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,6 +15,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
+from semcal_ros.ros.scene_messages import camera_messages  # noqa: E402
 
 from ros_helpers import RosGraph, spin_until  # noqa: E402
 from test_ros_calibrator import assert_empty_transform, assert_quality  # noqa: E402
@@ -26,20 +25,7 @@ pytestmark = pytest.mark.ros
 #: Cheap, but enough to land within a few cm on this clean scene (about 4 s a goal).
 ENGINE = {"engine.schedule.max_evaluations": [60, 30, 30],
           "engine.schedule.restarts": [0, 0, 0], "engine.verification.starts": 0}
-
-
-def camera_messages(scene: Path, cam: dict) -> dict[str, Any]:
-    from semcal_ros.io.files import read_camera_info, read_label_image, read_rgb_image
-
-    folder = scene / cam["folder"]
-    # camera_info.yaml (the ROS calibration format) has no frame id; the bag uses the listed one
-    camera = replace(read_camera_info(folder / "camera_info.yaml"), frame_id=cam["frame_id"])
-    header = conv.make_header(camera.frame_id, 1700000002.5)
-    return {cam["topics"]["labels"]: conv.numpy_to_image(
-                read_label_image(folder / "labels.png"), "mono8", header),
-            cam["topics"]["image_raw"]: conv.numpy_to_image(
-                read_rgb_image(folder / "image.png"), "rgb8", header),
-            cam["topics"]["camera_info"]: conv.model_to_camera_info(camera, header)}
+STAMP = 1700000002.5  # the label images' stamp
 
 
 def test_two_cameras_on_one_map(tmp_path, scene_factory):
@@ -62,7 +48,7 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
         proc = graph.start_node("calibrator", params={
             "map_file": str(scene / "map.ply"), "cameras": [a, b], **ENGINE})
         watcher = DiagnosticsWatcher(node)
-        msgs = {**camera_messages(scene, cams[0]), **camera_messages(scene, cams[1])}
+        msgs = {**camera_messages(scene, cams[0], STAMP), **camera_messages(scene, cams[1], STAMP)}
         pubs = {t: node.create_publisher(CameraInfo if "info" in t else Image, t,
                                          qos.reliable(1)) for t in msgs}
         timer = node.create_timer(0.3, lambda: [pubs[t].publish(m) for t, m in msgs.items()])

@@ -211,12 +211,13 @@ def run_drift_demo(opts: DriftDemoOptions) -> int:
     from sensor_msgs.msg import CameraInfo, Image
 
     from semcal_interfaces.msg import CalibrationDrift
-    from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
+    from semcal_ros.io.files import read_pose
     from semcal_ros.pose import rotation_error_deg, translation_error
     from semcal_ros.ros import conversions as conv
     from semcal_ros.ros import qos
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
     from semcal_ros.ros.launch import NodeGraph
+    from semcal_ros.ros.scene_messages import camera_messages
     from semcal_ros.scenes import SIZES
     from semcal_ros.scenes.generate import camera_view
     from dataclasses import replace
@@ -246,16 +247,12 @@ def run_drift_demo(opts: DriftDemoOptions) -> int:
         # each camera's label stream and CameraInfo, 2 Hz, as a segmenter would publish them
         streams: dict[str, dict] = {}
         for name in names:
-            folder = scene / listed[name]["folder"]
-            camera = replace(read_camera_info(folder / "camera_info.yaml"),
-                             frame_id=listed[name]["frame_id"])
-            header = conv.make_header(camera.frame_id)
+            topics = listed[name]["topics"]
+            msgs = camera_messages(scene, listed[name])
             streams[name] = {
-                "labels": conv.numpy_to_image(read_label_image(folder / "labels.png"), "mono8",
-                                              header),
-                "info": conv.model_to_camera_info(camera, header),
-                "pub_labels": node.create_publisher(Image, f"/{name}/labels", qos.reliable(1)),
-                "pub_info": node.create_publisher(CameraInfo, f"/{name}/camera_info",
+                "labels": msgs[topics["labels"]], "info": msgs[topics["camera_info"]],
+                "pub_labels": node.create_publisher(Image, topics["labels"], qos.reliable(1)),
+                "pub_info": node.create_publisher(CameraInfo, topics["camera_info"],
                                                   qos.reliable(1))}
 
         def publish() -> None:
