@@ -74,22 +74,22 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
         assert all(m.level == CalibrationDrift.OK for m in unchanged), \
             [m.message for m in unchanged]
         assert all(m.camera_frame_id == camera.frame_id for m in unchanged)
-        assert all(0 < m.seconds < 5 for m in unchanged)
+        assert all(np.isfinite(m.seconds) and m.seconds > 0 for m in unchanged)  # its duration: a figure of bench_drift
 
         # bad input: a label image of the wrong encoding, a calibration with NaN: one line each,
         # the node keeps what it held and keeps checking
         bad = conv.numpy_to_image(np.zeros((4, 4, 3), np.uint8), "rgb8", header)
         showing["labels"] = bad
-        spin_until(executor, lambda: "ignoring label image" in proc.log(), 10,
+        spin_until(executor, lambda: "ignoring label image" in proc.log(), 30,
                    "the monitor to refuse the rgb8 label image")
         nan = conv.transform_from_pose(truth, "map", camera.frame_id)
         nan.transform.translation.x = math.nan
         pub_tf.publish(nan)
-        spin_until(executor, lambda: "not a finite pose" in proc.log(), 10,
+        spin_until(executor, lambda: "not a finite pose" in proc.log(), 30,
                    "the monitor to refuse the NaN calibration")
         assert len([line for line in proc.log().splitlines() if "ignoring" in line]) == 2
         spin_until(executor, lambda: watcher.get("calibration_monitor").get("level") == "2",
-                   10, "/diagnostics to show the refused input")
+                   30, "/diagnostics to show the refused input")
         assert "input_error.label image" in watcher.get("calibration_monitor")
 
         # the camera is knocked: 0.4 deg and 5 cm
@@ -103,7 +103,7 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
         assert flagged.loss_best < flagged.loss_calibrated
         assert drifts.index(flagged) - n <= 3  # confirmed on the 2nd check after the change
         spin_until(executor, lambda: watcher.get("calibration_monitor").get("level") in
-                   ("1", "2") and "drift_deg" in watcher.get("calibration_monitor"), 10,
+                   ("1", "2") and "drift_deg" in watcher.get("calibration_monitor"), 30,
                    "the drift in /diagnostics")
         assert float(watcher.get("calibration_monitor")["drift_deg"]) > 0.2
         assert proc.running
@@ -111,7 +111,7 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
         late: list[Any] = []
         node.create_subscription(CalibrationDrift, "/calibration/drift", late.append,
                                  qos.latched())
-        spin_until(executor, lambda: bool(late), 10, "the latched drift message")
+        spin_until(executor, lambda: bool(late), 30, "the latched drift message")
     finally:
         executor.shutdown()
         node.destroy_node()

@@ -96,7 +96,7 @@ def calibrator(tmp_path_factory, demo_scene):
                    "the calibrator to hold a map, a label image and CameraInfo")
         node.destroy_timer(timer)
         client = CalibrateClient(node)
-        client.wait_for_server(20)
+        client.wait_for_server(30)
         yield Calibrator(graph, proc, node, executor, client, watcher, demo_scene, msgs,
                          watcher.get("calibrator")["map_points"])
     finally:
@@ -196,7 +196,7 @@ def test_goal_sequences_on_one_calibrator_lose_no_result(calibrator):
     running = c.client.send(c.executor, c.good_goal())
     assert running.accepted
     c.client.cancel(c.executor, running)
-    assert_cancelled(c.client.wait(c.executor, running, timeout=20))
+    assert_cancelled(c.client.wait(c.executor, running, timeout=30))
     wait_idle(c)  # a cancel is answered at once; the engine stops at its next check
 
     assert_succeeded(c.call(c.good_goal()), c.scene)
@@ -348,16 +348,16 @@ def test_calibrator_kept_its_inputs_and_serves_a_good_goal_after_the_bad_inputs(
 def test_a_goal_while_one_runs_is_answered_with_the_reason(calibrator):
     c = calibrator
     first = c.client.send(c.executor, c.good_goal())
-    spin_until(c.executor, lambda: c.diag().get("state", "").startswith("running"), 20,
+    spin_until(c.executor, lambda: c.diag().get("state", "").startswith("running"), 30,
                "the first goal to run")
-    second = c.call(c.good_goal(), timeout=20)
+    second = c.call(c.good_goal(), timeout=30)
     assert_aborted(second, "busy: goal ", "has been running for", "(one calibration at a time)")
-    spin_until(c.executor, lambda: c.diag()["last_rejection"].startswith("busy: goal "), 5,
+    spin_until(c.executor, lambda: c.diag()["last_rejection"].startswith("busy: goal "), 30,
                "the busy note in the diagnostics")
     assert_succeeded(c.client.wait(c.executor, first, timeout=120), c.scene)
     third = c.call(c.good_goal(map_frame="odom"))  # the next goal clears the busy note
     assert_aborted(third, "frame 'odom'")
-    spin_until(c.executor, lambda: c.diag().get("last_rejection") == "none", 5,
+    spin_until(c.executor, lambda: c.diag().get("last_rejection") == "none", 30,
                "last_rejection to be cleared")
 
 
@@ -375,7 +375,7 @@ def test_a_degenerate_best_pose_is_never_published(calibrator):
     sub = c.node.create_subscription(TransformStamped, "/calibration/transform",
                                      published.append, qos.latched())
     try:
-        spin_until(c.executor, lambda: published, 10, "the last published transform")
+        spin_until(c.executor, lambda: published, 30, "the last published transform")
         start = read_pose(c.scene / "initial.yaml")
         up = Pose.from_body_rpy_deg(start.translation, [0.0, -89.0, 0.0])
         out = c.call(make_goal(up, yaw_search=2), timeout=120)

@@ -26,6 +26,14 @@ class _Node:
         return SimpleNamespace(debug=lambda *_: None)
 
 
+def _wait_for(predicate, what: str, timeout: float = 30.0) -> None:
+    """Poll ``predicate`` until true; the deadline is generous (a loaded machine), never a pace."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.01)
+
+
 def _handle() -> SimpleNamespace:
     return SimpleNamespace(is_cancel_requested=False, publish_feedback=lambda _: None)
 
@@ -39,7 +47,7 @@ def test_goals_queue_one_per_key_and_a_cancelled_queued_job_never_starts():
         def run(job: EngineJob) -> str:
             order.append(name)
             if name == "north":
-                gate.wait(5)
+                gate.wait(60)  # held until the test has checked the queue
             return name
         return run
 
@@ -53,31 +61,29 @@ def test_goals_queue_one_per_key_and_a_cancelled_queued_job_never_starts():
     threads = [threading.Thread(target=lambda s=s, k=k: outcomes.__setitem__(
         k, runner.run(s, jobs[k]))) for k, s in (("north", north), ("south", south),
                                                 ("east", east))]
-    for t in threads:
-        t.start()
-        time.sleep(0.1)  # arrival order
+    for t, state in zip(threads, (north, south, east)):
+        t.start()  # arrival order: the next goal arrives once this one is submitted
+        _wait_for(lambda: state.submitted, f"goal {state.goal_id} to be submitted")
+    _wait_for(lambda: north.running, "north to start")
     assert north.running and south.stage == "queued" and east.stage == "queued"
     text = runner.claim("south", "eeee", _handle())
     assert text.startswith("busy: goal cccc for camera 'south' is queued (") and \
         text.endswith("(one calibration per camera at a time)")
     east.handle.is_cancel_requested = True  # cancelled while queued: answered at once
-    threads[2].join(2)
+    threads[2].join(30)
     assert outcomes["east"] == "cancelled"
     runner.release(east, jobs["east"])
     assert runner.state("east") is not None  # its job has not ended yet: the key stays busy
     gate.set()
     for t in threads[:2]:
-        t.join(5)
+        t.join(30)
     assert outcomes == {"north": "done", "south": "done", "east": "cancelled"}
-    assert jobs["east"].done.wait(2)  # the worker took it after south's, and skipped it
+    assert jobs["east"].done.wait(30)  # the worker took it after south's, and skipped it
     assert order == ["north", "south"]  # east never ran
     assert jobs["north"].result == "north" and isinstance(jobs["east"].error, JobCancelled)
     for state, job in ((north, jobs["north"]), (south, jobs["south"])):
         runner.release(state, job)
-    deadline = time.monotonic() + 2
-    while runner.states() and time.monotonic() < deadline:
-        time.sleep(0.02)
-    assert runner.states() == {}  # east's key freed when its job ended
+    _wait_for(lambda: not runner.states(), "every key to be freed")  # east's: when its job ended
     runner.close()
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -23,6 +24,7 @@ from semcal_ros.scenes.generate import vehicle_poses
 from semcal_ros.scenes.layouts import KINDS, build_layout
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.mapping.filters import voxel_downsample
+from scene_fingerprints import PINNED_FILE, PINNED_FILES, compare, fingerprint, key_name
 
 #: Options that make a scene cheap where only its variant's effect is tested.
 TINY = dict(scans=6, horizontal_step_deg=1.0, write_bag=False)
@@ -193,29 +195,44 @@ def test_bag_reads_back_with_rosbags_and_decodes_with_rclpy(demo_scene: Path):
     assert np.all(np.diff(cam_stamps) > 0.5)
 
 
-#: sha256 prefixes of files of tiny scenes as the generator made them before the synthetic worlds
-#: shared one camera model and one voxel filter (commit 59c8c7c): existing (kind, seed, variant)
-#: triples must keep making the same scenes, whatever options are added.
-PINNED = {
-    ("junction", 3, "ideal"): {"map.ply": "de77d708e5483393", "labels.png": "795c948dd81b4d4e",
-                               "image.png": "95cdb9166203802d",
-                               "scans/000003.ply": "aeab1896c3c8d812",
-                               "scans/poses.yaml": "e052eea10441134d"},
-    ("junction", 3, "noisy_labels"): {"labels.png": "e949e438acd84f9a"},
-    ("junction", 3, "pose_noise"): {"scans/poses.yaml": "3ec71f11a9a64200",
-                                    "map_noisy_poses.ply": "438b43d4f9c18d7b"},
-    ("arterial", 1, "dynamic"): {"map.ply": "e7f5c7d8b82321a5", "labels.png": "ee15819a1585f3a8",
-                                 "image.png": "336ec0cf55641dd5",
-                                 "scans/000003.ply": "6e580883d6bbd4a0"},
-}
-
-
-@pytest.mark.parametrize("key", list(PINNED), ids=lambda k: "-".join(map(str, k)))
+@pytest.mark.parametrize("key", list(PINNED_FILES), ids=key_name)
 def test_existing_seeds_still_make_the_same_scenes(scene_factory, key):
-    import hashlib
+    """Existing (kind, seed, variant) triples keep making the same scenes, whatever options are
+    added: labels exactly, geometry and shading within rounding (test/scene_fingerprints.py)."""
+    pinned = json.loads(PINNED_FILE.read_text())[key_name(key)]
     scene = scene_factory(*key, **TINY)
-    got = {f: hashlib.sha256((scene / f).read_bytes()).hexdigest()[:16] for f in PINNED[key]}
-    assert got == PINNED[key]
+    problems = [line for name, want in pinned.items()
+                for line in compare(name, fingerprint(scene / name), want)]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_fingerprint_sees_a_real_change(scene_factory, tmp_path):
+    """The tolerances are tight enough: a scan with a few points moved by a centimetre, a label
+    image with one changed pixel and a shaded image one grey level brighter in one block fail."""
+    from semcal_ros.io.files import write_label_image, write_rgb_image
+    from semcal_ros.io.ply import write_ply
+
+    scene = scene_factory("junction", 3, "ideal", **TINY)
+    cloud = read_ply(scene / "scans" / "000003.ply")
+    want = fingerprint(scene / "scans" / "000003.ply")
+    assert compare("scans/000003.ply", want, want) == []
+    moved = cloud.label == np.bincount(cloud.label).argmax()
+    cloud.xyz[np.flatnonzero(moved)[::2]] += 0.01
+    write_ply(tmp_path / "moved.ply", cloud)
+    assert compare("scans/000003.ply", fingerprint(tmp_path / "moved.ply"), want)
+
+    labels = read_label_image(scene / "labels.png")
+    labels[0, 0] = (labels[0, 0] + 1) % 19
+    write_label_image(tmp_path / "labels.png", labels)
+    assert compare("labels.png", fingerprint(tmp_path / "labels.png"),
+                   fingerprint(scene / "labels.png"))
+
+    rgb = read_rgb_image(scene / "image.png")
+    brighter = rgb.copy()
+    brighter[:24, :24] = np.minimum(brighter[:24, :24].astype(int) + 2, 255)
+    write_rgb_image(tmp_path / "image.png", brighter)
+    assert compare("image.png", fingerprint(tmp_path / "image.png"),
+                   fingerprint(scene / "image.png"))
 
 
 # ------------------------------------------------------------------------------------------
