@@ -68,6 +68,31 @@ DEFAULT_DYNAMIC: tuple[str, ...] = (
 )
 
 
+#: SemanticKITTI's moving classes (252-259): a moving object never belongs in a map.
+MOVING_KITTI: tuple[int, ...] = tuple(i for i, n in SEMANTIC_KITTI.items() if n.startswith("moving-"))
+#: Cityscapes vehicle classes: parked ones are part of the scene the camera sees.
+VEHICLES: tuple[str, ...] = ("car", "truck", "bus", "train", "motorcycle", "bicycle")
+#: SemanticKITTI ids of vehicles that are not marked moving (parked or standing).
+VEHICLE_KITTI: tuple[int, ...] = tuple(
+    KITTI_ID[k] for k, c in DEFAULT_ALIGNMENT.items() if c in VEHICLES and not k.startswith("moving-"))
+#: A vehicle class's moving counterpart (other-vehicle etc. -> moving-other-vehicle).
+_MOVING_OF: dict[int, int] = {
+    KITTI_ID["car"]: KITTI_ID["moving-car"], KITTI_ID["truck"]: KITTI_ID["moving-truck"],
+    KITTI_ID["bus"]: KITTI_ID["moving-bus"], KITTI_ID["on-rails"]: KITTI_ID["moving-on-rails"],
+    KITTI_ID["motorcycle"]: KITTI_ID["moving-motorcyclist"],
+    KITTI_ID["bicycle"]: KITTI_ID["moving-bicyclist"],
+    KITTI_ID["other-vehicle"]: KITTI_ID["moving-other-vehicle"],
+}
+
+
+def moving_id_of(kitti_ids: np.ndarray) -> np.ndarray:
+    """The moving class of each vehicle id (moving-other-vehicle for any other id)."""
+    lut = np.full(65536, KITTI_ID["moving-other-vehicle"], np.uint16)
+    for still, moving in _MOVING_OF.items():
+        lut[still] = moving
+    return lut[np.asarray(kitti_ids, np.uint16)]
+
+
 @dataclass(frozen=True)
 class LabelMapping:
     """Both domains' tables into the aligned (Cityscapes trainId) classes.
@@ -103,6 +128,18 @@ class LabelMapping:
             dynamic=tuple(data.get("dynamic", DEFAULT_DYNAMIC)),
             merge=dict(data.get("merge", {}) or {}),
         )
+
+    def with_parked_vehicles(self) -> "LabelMapping":
+        """Vehicles count in both domains (parked cars are in the map and in the image, as the
+        paper kept them); SemanticKITTI's moving classes leave the alignment, so moving vehicles
+        are still dropped from maps. People and riders stay dynamic.
+
+        Not the default: the synthetic scenes' image shows their moving cars, which their maps
+        (rightly) do not hold, so counting vehicles there charges every pose for them.
+        """
+        alignment = {k: c for k, c in self.alignment.items() if KITTI_ID[k] not in MOVING_KITTI}
+        dynamic = tuple(c for c in self.dynamic if c not in VEHICLES)
+        return LabelMapping(alignment, dynamic, self.merge)
 
     def _aligned(self, city_name: str) -> int:
         name = self.merge.get(city_name, city_name)

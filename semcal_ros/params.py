@@ -65,6 +65,7 @@ class LabelParams:
 
     merge: tuple[str, ...] = ()  # "from:to" Cityscapes class names merged in both domains
     # (the paper on KITTI: ["sidewalk:road"])
+    parked_vehicles: bool = False  # vehicles count (parked cars in map and image); moving-* dropped
 
     def __post_init__(self) -> None:
         for item in self.merge:

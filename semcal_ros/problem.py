@@ -42,12 +42,12 @@ class Level:
 def mapping_for(params: CalibrationParams, mapping: LabelMapping | None = None) -> LabelMapping:
     """The label alignment: an explicit one (a YAML given by the user), else the built-in table
     with ``params.labels.merge`` applied (what a parameter file can carry)."""
-    if mapping is not None:
-        if params.labels.merge:
-            return LabelMapping(mapping.alignment, mapping.dynamic,
-                                {**dict(mapping.merge), **params.labels.as_dict()})
-        return mapping
-    return LabelMapping(merge=params.labels.as_dict())
+    if mapping is None:
+        mapping = LabelMapping(merge=params.labels.as_dict())
+    elif params.labels.merge:
+        mapping = LabelMapping(mapping.alignment, mapping.dynamic,
+                               {**dict(mapping.merge), **params.labels.as_dict()})
+    return mapping.with_parked_vehicles() if params.labels.parked_vehicles else mapping
 
 
 class Problem:
