@@ -157,8 +157,8 @@ def test_camera_info_round_trip_projects_identically():
 def test_camera_info_errors():
     msg = conv.model_to_camera_info(
         CameraModel(10, 10, np.array([[5.0, 0, 5], [0, 5, 5], [0, 0, 1]]), np.zeros(5)))
-    msg.distortion_model = "equidistant"
-    with pytest.raises(ValueError, match="unsupported distortion model 'equidistant'"):
+    msg.distortion_model = "fov"
+    with pytest.raises(ValueError, match="unsupported distortion model 'fov'"):
         conv.camera_info_to_model(msg)
     msg.distortion_model = "plumb_bob"
     msg.binning_x = 2

@@ -16,7 +16,7 @@ import os
 import numba
 import numpy as np
 
-from semcal_ros.camera import distort
+from semcal_ros.camera import MODEL_ID, distort, distort_rational, project_equidistant
 from semcal_ros.labels import INVALID
 from semcal_ros.render.lod import chunk_stride
 from semcal_ros.render.prepare import CHUNK, PreparedMap
@@ -30,6 +30,9 @@ if not os.environ.get("NUMBA_THREADING_LAYER"):
     numba.config.THREADING_LAYER = "omp"
 
 _distort = numba.njit(cache=True, inline="always")(distort)
+_distort_rational = numba.njit(cache=True, inline="always")(distort_rational)
+RATIONAL = MODEL_ID["rational_polynomial"]
+EQUIDISTANT = MODEL_ID["equidistant"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -54,22 +57,46 @@ def _chunk_visible(c, rad, r, t, near, far, bounds):
     return True
 
 
+@numba.njit(cache=True, inline="always")
+def _chunk_visible_fisheye(c, rad, r, t, near, far, limit):
+    """The equidistant lens' cull: a cone of half-angle ``limit`` (it may exceed 90 deg) about
+    the optical axis, and the near/far ranges. The sphere is out when its nearest possible ray
+    (the centre's angle minus the sphere's angular radius) is beyond the cone."""
+    xc = r[0, 0] * c[0] + r[0, 1] * c[1] + r[0, 2] * c[2] + t[0]
+    yc = r[1, 0] * c[0] + r[1, 1] * c[1] + r[1, 2] * c[2] + t[1]
+    zc = r[2, 0] * c[0] + r[2, 1] * c[1] + r[2, 2] * c[2] + t[2]
+    cdist = math.sqrt(xc * xc + yc * yc + zc * zc)
+    if cdist + rad <= near or cdist - rad >= far:
+        return False
+    if cdist <= rad:
+        return True
+    angle = math.atan2(math.sqrt(xc * xc + yc * yc), zc)
+    return angle - math.asin(rad / cdist) <= limit
+
+
 @numba.njit(cache=True, parallel=True, nogil=True)
 def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted, bounds,
                  splat_lambda, lod_radius, radius_max, near, far, offsets, start, falloff, core,
-                 width, height, n_threads):
+                 width, height, n_threads, model, limit):
     n = xyz.shape[0]
     n_chunks = chunk_center.shape[0]
     zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
     fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
     k1, k2, p1, p2, k3 = dist_c[0], dist_c[1], dist_c[2], dist_c[3], dist_c[4]
+    k4, k5, k6 = dist_c[5], dist_c[6], dist_c[7]
+    fisheye = model == EQUIDISTANT
+    span = int(math.floor(radius_max))
     xmin, xmax, ymin, ymax = bounds[0], bounds[1], bounds[2], bounds[3]
     steps_max = int(math.floor(radius_max * RADIUS_STEPS))
     for th in numba.prange(n_threads):
         zb = zbufs[th]
         zb[:] = EMPTY_KEY
         for ci in range(th, n_chunks, n_threads):
-            if not _chunk_visible(chunk_center[ci], chunk_radius[ci], r, t, near, far, bounds):
+            if fisheye:
+                if not _chunk_visible_fisheye(chunk_center[ci], chunk_radius[ci], r, t, near,
+                                              far, limit):
+                    continue
+            elif not _chunk_visible(chunk_center[ci], chunk_radius[ci], r, t, near, far, bounds):
                 continue
             stride = chunk_stride(chunk_center[ci], chunk_radius[ci], r, t, near, splat_lambda,
                                   lod_radius)
@@ -83,18 +110,32 @@ def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, dis
                 yc = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
                 zc = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
                 dist = math.sqrt(xc * xc + yc * yc + zc * zc)
-                if not (zc > near and dist < far):
-                    continue
-                xn = xc / zc
-                yn = yc / zc
-                if not (xn >= xmin and xn <= xmax and yn >= ymin and yn <= ymax):
-                    continue
-                if distorted:
-                    xd, yd = _distort(xn, yn, k1, k2, p1, p2, k3)
+                if fisheye:  # ranges and the ray's angle, as in reference.project_points
+                    if not (dist > near and dist < far):
+                        continue
+                    # k1..k4 of the equidistant model are the first four coefficients
+                    xd, yd, theta = project_equidistant(xc, yc, zc, k1, k2, p1, p2)
+                    if not theta <= limit:
+                        continue
                 else:
-                    xd, yd = xn, yn
+                    if not (zc > near and dist < far):
+                        continue
+                    xn = xc / zc
+                    yn = yc / zc
+                    if not (xn >= xmin and xn <= xmax and yn >= ymin and yn <= ymax):
+                        continue
+                    if model == RATIONAL:
+                        if not xn * xn + yn * yn <= limit:
+                            continue
+                        xd, yd = _distort_rational(xn, yn, k1, k2, p1, p2, k3, k4, k5, k6)
+                    elif distorted:
+                        xd, yd = _distort(xn, yn, k1, k2, p1, p2, k3)
+                    else:
+                        xd, yd = xn, yn
                 u = int(math.floor(fx * xd + cx + 0.5))
                 v = int(math.floor(fy * yd + cy + 0.5))
+                if fisheye and not (-span <= u < width + span and -span <= v < height + span):
+                    continue
                 step = min(int(math.floor(lam / dist * RADIUS_STEPS)), steps_max)
                 lab = label[i]
                 for o in range(start[step], start[step + 1]):
@@ -123,7 +164,7 @@ def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> 
         view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
         view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far, view.disc_offsets, view.disc_start,
         view.disc_falloff, view.disc_core, view.width,
-        view.height, threads)
+        view.height, threads, view.model, view.limit)
     return zbuf.reshape(view.height, view.width)
 
 

@@ -3,17 +3,26 @@
 Each point becomes a disc of radius lambda / distance pixels (quantised, clipped); the z-buffer
 holds one uint32 per pixel packing depth (mm, upper 24 bits) and label (lower 8 bits), so a single
 minimum keeps the nearest point and breaks depth ties by label, deterministically.
+
+Depth is the range (distance to the camera centre), never z, and the disc radius follows the
+range too: both stay meaningful for a fisheye, whose points beside or behind the image plane have
+z <= 0. Culling is per model: pinhole models drop z <= near and points outside the undistorted
+image box (rational_polynomial also beyond its fold radius); the equidistant model drops ranges
+<= near and rays more than ``view.limit`` from the optical axis (camera.render_limit).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from semcal_ros.camera import distort
+from semcal_ros.camera import MODEL_ID, distort, distort_rational, equidistant_many
 from semcal_ros.labels import INVALID
 from semcal_ros.render.lod import chunk_strides
 from semcal_ros.render.prepare import CHUNK, PreparedMap
 from semcal_ros.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
+
+RATIONAL = MODEL_ID["rational_polynomial"]
+EQUIDISTANT = MODEL_ID["equidistant"]
 
 
 def project_points(pmap: PreparedMap, view: View) -> tuple[np.ndarray, ...]:
@@ -34,17 +43,36 @@ def project_points(pmap: PreparedMap, view: View) -> tuple[np.ndarray, ...]:
     yc = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
     zc = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
     dist = np.sqrt(xc * xc + yc * yc + zc * zc)
-    keep = (zc > view.near) & (dist < view.far)
-    xc, yc, zc, dist, lab, lam = xc[keep], yc[keep], zc[keep], dist[keep], label[keep], lam[keep]
-    xn, yn = xc / zc, yc / zc
-    xmin, xmax, ymin, ymax = view.bounds
-    keep = (xn >= xmin) & (xn <= xmax) & (yn >= ymin) & (yn <= ymax)
-    xn, yn, dist, lab, lam = xn[keep], yn[keep], dist[keep], lab[keep], lam[keep]
-    k1, k2, p1, p2, k3 = view.distortion
-    xd, yd = distort(xn, yn, k1, k2, p1, p2, k3) if view.distorted else (xn, yn)
+    if view.model == EQUIDISTANT:
+        # a fisheye sees beside and behind its image plane: near and far are ranges, the field
+        # is bounded by the ray's angle to the optical axis (camera.render_limit)
+        keep = (dist > view.near) & (dist < view.far)
+        xc, yc, zc, dist, lab, lam = xc[keep], yc[keep], zc[keep], dist[keep], label[keep], lam[keep]
+        xd, yd, theta = equidistant_many(xc, yc, zc, view.distortion[:4].copy())
+        keep = theta <= view.limit
+        xd, yd, dist, lab, lam = xd[keep], yd[keep], dist[keep], lab[keep], lam[keep]
+    else:
+        keep = (zc > view.near) & (dist < view.far)
+        xc, yc, zc, dist, lab, lam = xc[keep], yc[keep], zc[keep], dist[keep], label[keep], lam[keep]
+        xn, yn = xc / zc, yc / zc
+        xmin, xmax, ymin, ymax = view.bounds
+        keep = (xn >= xmin) & (xn <= xmax) & (yn >= ymin) & (yn <= ymax)
+        if view.model == RATIONAL:
+            keep &= xn * xn + yn * yn <= view.limit
+        xn, yn, dist, lab, lam = xn[keep], yn[keep], dist[keep], lab[keep], lam[keep]
+        if view.model == RATIONAL:
+            xd, yd = distort_rational(xn, yn, *view.distortion)
+        elif view.distorted:
+            xd, yd = distort(xn, yn, *view.distortion[:5])
+        else:
+            xd, yd = xn, yn
     fx, fy, cx, cy = view.intrinsics
     u = np.floor(fx * xd + cx + 0.5).astype(np.int64)
     v = np.floor(fy * yd + cy + 0.5).astype(np.int64)
+    if view.model == EQUIDISTANT:  # off-image centres whose discs cannot reach the image
+        span = int(np.floor(view.radius_max))
+        keep = (u >= -span) & (u < view.width + span) & (v >= -span) & (v < view.height + span)
+        u, v, dist, lab, lam = u[keep], v[keep], dist[keep], lab[keep], lam[keep]
     steps_max = int(np.floor(view.radius_max * RADIUS_STEPS))
     step = np.minimum(np.floor(lam / dist * RADIUS_STEPS), steps_max).astype(np.int64)
     return u, v, step, dist, lab.astype(np.int64)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcal_ros.camera import CameraModel
+from semcal_ros.camera import MODEL_ID, CameraModel
 from semcal_ros.params import RenderParams
 from semcal_ros.pose import Pose
 from semcal_ros.render.prepare import PreparedMap
@@ -25,7 +25,7 @@ class View:
     rotation: np.ndarray  # (3, 3) local map -> camera
     translation: np.ndarray  # (3,) local map -> camera
     intrinsics: np.ndarray  # fx, fy, cx, cy
-    distortion: np.ndarray  # k1, k2, p1, p2, k3
+    distortion: np.ndarray  # (8,) plumb_bob/rational k1 k2 p1 p2 k3 k4 k5 k6; equidistant k1..k4
     bounds: np.ndarray  # xmin, xmax, ymin, ymax of normalised coordinates in view
     splat_lambda: float  # radius (px) = splat_lambda / distance (m)
     radius_max: float  # px
@@ -37,6 +37,8 @@ class View:
     disc_core: np.ndarray  # (K,) uint8: 1 where the offset carries the label, 0 depth only
     lod_radius: float = 0.0  # px: chunks whose discs are smaller are thinned (0: all points)
     distorted: bool = True  # False when all distortion coefficients are zero (skips the polynomial)
+    model: int = 0  # camera.MODEL_ID: 0 plumb_bob, 1 rational_polynomial, 2 equidistant
+    limit: float = np.inf  # camera.render_limit: equidistant max theta, rational max r^2
 
 
 def disc_table(radius_max: float, depth_falloff: float,
@@ -78,8 +80,11 @@ _DISC_CACHE: dict[tuple[float, float, float], tuple[np.ndarray, ...]] = {}
 def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda: float,
               radius_max: float, near: float = 0.3, far: float = 200.0,
               bounds: np.ndarray | None = None, depth_falloff: float = 0.0,
-              core_fraction: float = 1.0, lod_radius: float = 0.0) -> View:
-    """A view of the map (whose local origin is ``origin``) from ``pose``."""
+              core_fraction: float = 1.0, lod_radius: float = 0.0,
+              limit: float | None = None) -> View:
+    """A view of the map (whose local origin is ``origin``) from ``pose``. ``bounds`` and
+    ``limit`` (the camera's, computed when None) are passed by :class:`ViewSetup`, which computes
+    them once per stage."""
     r, t = pose.world_to_camera()
     t_local = t + r @ np.asarray(origin, float)
     key = (float(radius_max), float(depth_falloff), float(core_fraction))
@@ -92,12 +97,13 @@ def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda:
         width=camera.width, height=camera.height,
         rotation=np.ascontiguousarray(r), translation=np.ascontiguousarray(t_local),
         intrinsics=np.array([camera.fx, camera.fy, camera.cx, camera.cy]),
-        distortion=np.ascontiguousarray(camera.d, dtype=np.float64),
+        distortion=np.ascontiguousarray(camera.coefficients8, dtype=np.float64),
         bounds=np.asarray(bounds, dtype=np.float64),
         splat_lambda=float(splat_lambda), radius_max=float(radius_max),
         near=float(near), far=float(far), disc_offsets=offsets, disc_start=start,
         disc_falloff=falloff, disc_core=core, lod_radius=float(lod_radius),
-        distorted=bool(np.any(camera.d != 0.0)),
+        distorted=bool(np.any(camera.d != 0.0)), model=MODEL_ID[camera.model],
+        limit=float(camera.render_limit(radius_max) if limit is None else limit),
     )
 
 
@@ -116,12 +122,13 @@ class ViewSetup:
     depth_falloff: float
     bounds: np.ndarray
     params: RenderParams
+    limit: float = np.inf
 
     def view(self, pose: Pose) -> View:
         rp = self.params
         return make_view(self.camera, pose, self.origin, self.splat_lambda, self.radius_max,
                          rp.near, rp.far, self.bounds, self.depth_falloff, rp.core_fraction,
-                         rp.lod_radius)
+                         rp.lod_radius, self.limit)
 
 
 def view_setup(camera: CameraModel, pmap: PreparedMap, params: RenderParams | None = None,
@@ -140,7 +147,8 @@ def view_setup(camera: CameraModel, pmap: PreparedMap, params: RenderParams | No
         splat_lambda=rp.splat_lambda_for(pmap.spacing, camera.fx) / scale,
         radius_max=radius_max,
         depth_falloff=rp.depth_falloff if scale == 1 else rp.depth_falloff_coarse,
-        bounds=np.asarray(cam.normalized_bounds(margin_px=radius_max)), params=rp)
+        bounds=np.asarray(cam.normalized_bounds(margin_px=radius_max)), params=rp,
+        limit=cam.render_limit(radius_max))
 
 
 def view_for(camera: CameraModel, pose: Pose, pmap: PreparedMap,

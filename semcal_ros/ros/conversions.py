@@ -19,7 +19,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from semcal_ros import validation
-from semcal_ros.camera import CameraModel
+from semcal_ros.camera import ALIASES, COEFFICIENTS, SUPPORTED_MODELS, CameraModel
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.pose import Pose
 
@@ -220,10 +220,14 @@ def camera_info_to_model(msg: CameraInfo) -> CameraModel:
     model = msg.distortion_model
     d = np.asarray(msg.d, dtype=float)
     problems = []
-    if model == "rational_polynomial" and np.any(d[5:] != 0):
-        problems.append("rational_polynomial with k4..k6 != 0 is not supported (plumb_bob only)")
-    if model not in ("plumb_bob", "rational_polynomial", "", "none"):
-        problems.append(f"unsupported distortion model '{model}' (plumb_bob only)")
+    if model not in SUPPORTED_MODELS:
+        problems.append(f"unsupported distortion model '{model}' (supported: "
+                        f"{', '.join(COEFFICIENTS)})")
+    else:
+        n = COEFFICIENTS[ALIASES.get(model, model)]
+        if np.any(d[n:] != 0):
+            problems.append(f"{model or 'plumb_bob'} takes {n} distortion coefficients, "
+                            f"got {d.size}")
     if msg.binning_x > 1 or msg.binning_y > 1:
         problems.append(f"binning {msg.binning_x}x{msg.binning_y} is not supported")
     roi = msg.roi
@@ -232,15 +236,15 @@ def camera_info_to_model(msg: CameraInfo) -> CameraModel:
     k = np.asarray(msg.k, dtype=float).reshape(3, 3)
     problems += validation.camera_problems(msg.width, msg.height, k, d)
     validation.check(problems)
-    return CameraModel(int(msg.width), int(msg.height), k, d[:5] if d.size else np.zeros(5),
-                       msg.header.frame_id or "camera_optical")
+    return CameraModel(int(msg.width), int(msg.height), k, d if d.size else np.zeros(5),
+                       msg.header.frame_id or "camera_optical", model or "plumb_bob")
 
 
 def model_to_camera_info(camera: CameraModel, header: Header | None = None) -> CameraInfo:
     p = np.zeros((3, 4))
     p[:, :3] = camera.k
     return CameraInfo(header=header or make_header(camera.frame_id), width=camera.width,
-                      height=camera.height, distortion_model="plumb_bob",
+                      height=camera.height, distortion_model=camera.model,
                       d=[float(v) for v in camera.d], k=camera.k.ravel(), r=np.eye(3).ravel(),
                       p=p.ravel())
 

@@ -128,7 +128,7 @@ class SceneBagWriter:
             x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         return self.t["sensor_msgs/msg/CameraInfo"](
             header=self._header(stamp, frame.frame_id), height=cam.height, width=cam.width,
-            distortion_model="plumb_bob", d=cam.d.astype(np.float64), k=cam.k.ravel(),
+            distortion_model=cam.model, d=cam.d.astype(np.float64), k=cam.k.ravel(),
             r=np.eye(3).ravel(), p=p.ravel(), binning_x=0, binning_y=0, roi=roi)
 
     # -- writing ----------------------------------------------------------------------------
