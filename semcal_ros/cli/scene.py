@@ -42,6 +42,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--list", action="store_true",
                    help="print the commands that make every scene of the evaluation table")
     p.add_argument("--no-bag", action="store_true", help="skip the rosbag2 (bag/)")
+    p.add_argument("--compressed", action="store_true",
+                   help="the bag's camera images as image_transport's <topic>/compressed "
+                        "(CompressedImage: JPEG images, PNG labels), as recorders store them")
     p.add_argument("--no-scans", action="store_true",
                    help="skip scans/*.ply (scans/poses.yaml is still written)")
     p.add_argument("--threads", type=int, default=0, help="ray-casting threads (0 = all cores)")
@@ -52,6 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
+    from pathlib import Path
 
     from semcal_ros.scenes import SIZES, catalogue, generate_scene
     from semcal_ros.scenes.catalogue import find
@@ -79,8 +83,14 @@ def run(args: argparse.Namespace) -> int:
         if getattr(args, arg) is not None:
             changes[field] = getattr(args, arg)
     options = replace(options, **changes)
+    if args.compressed and args.no_bag:
+        raise ValueError("--compressed changes the bag: it cannot go with --no-bag")
     result = generate_scene(args.out, kind, args.seed, variant, options,
                             force=args.force, progress=not args.quiet)
+    if args.compressed:
+        from semcal_ros.scenes.bag import compress_camera_images
+
+        compress_camera_images(Path(result.out) / "bag")
     s = result.summary
     print(f"{result.out}: {s['kind']}/{s['variant']} seed {s['seed']}, "
           f"{s['counts']['scans']} scans, {s['lidar']['lines']} lines, "

@@ -14,6 +14,11 @@ Topics: the unnamed camera (``name == ""``) listens on ``camera/labels``, ``came
 and ``camera/image_raw`` (the single-camera calibrator's names); a camera named ``north`` on
 ``north/labels``, ``north/camera_info`` and ``north/image_raw``. All are relative: remap them or
 use a namespace.
+
+``image_transport`` / ``labels_transport`` ``compressed`` subscribe
+``sensor_msgs/CompressedImage`` on ``<resolved topic>/compressed`` instead (image_transport's
+naming): camera images as JPEG or PNG, label images as PNG only (JPEG changes class ids and is
+refused). Compressed data that does not decode is dropped with a WARN naming the topic.
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from semcal_ros.camera import CameraModel
+from semcal_ros.io.images import UndecodableImage
+from semcal_ros.ros import compressed
 from semcal_ros.ros import conversions as conv
 
 #: The kinds of input a camera has, as named in refusals and diagnostics.
@@ -94,15 +101,24 @@ class CameraInputs:
 
     ``log_refusal`` is called with one line (``"ignoring CameraInfo: K contains NaN ..."``) when a
     refusal is new or its reason changed; ``resolve`` turns a relative topic name into the full
-    one for messages (a node's ``resolve_topic_name``).
+    one for messages (a node's ``resolve_topic_name``). ``log_warning`` (default:
+    ``log_refusal``) says that compressed data did not decode.
     """
 
     def __init__(self, topics: CameraTopics,
                  log_refusal: Callable[[str], None] | None = None,
-                 resolve: Callable[[str], str] | None = None) -> None:
+                 resolve: Callable[[str], str] | None = None,
+                 image_transport: str = "raw", labels_transport: str = "raw",
+                 log_warning: Callable[[str], None] | None = None) -> None:
         self.topics = topics
         self._log = log_refusal or (lambda _text: None)
+        self._warn = log_warning or self._log
         self._resolve = resolve or (lambda name: name)
+        self.transports = {LABELS: compressed.check_transport(labels_transport,
+                                                              "labels_transport"),
+                           IMAGE: compressed.check_transport(image_transport)}
+        self._topic = {LABELS: topics.labels, CAMERA_INFO: topics.camera_info,
+                       IMAGE: topics.image}  # as subscribed (resolved for compressed ones)
         self._lock = threading.Lock()
         self._labels: np.ndarray | None = None
         self._labels_frame = ""
@@ -117,8 +133,8 @@ class CameraInputs:
 
     # --- messages ---------------------------------------------------------------------------
     def on_labels(self, msg: Any) -> bool:
-        """Keep a label image (mono8); False when refused."""
-        labels = self._convert(LABELS, conv.image_to_labels, msg)
+        """Keep a label image (mono8, or PNG CompressedImage); False when refused."""
+        labels = self._convert(LABELS, compressed.to_labels, msg)
         if labels is None:
             return False
         with self._lock:
@@ -135,8 +151,8 @@ class CameraInputs:
         return True
 
     def on_image(self, msg: Any) -> bool:
-        """Keep a camera image (rgb8 / bgr8, kept as RGB); False when refused."""
-        rgb = self._convert(IMAGE, conv.image_to_rgb, msg)
+        """Keep a camera image (rgb8 / bgr8 / JPEG / PNG, kept as RGB); False when refused."""
+        rgb = self._convert(IMAGE, compressed.to_rgb, msg)
         if rgb is None:
             return False
         with self._lock:
@@ -152,7 +168,9 @@ class CameraInputs:
                 self.received[what] += 1
                 new = self._refusals.get(what) != str(exc)
                 self._refusals[what] = str(exc)
-            if new:
+            if new and isinstance(exc, UndecodableImage):
+                self._warn(f"dropping a {what} on {self._resolve(self._topic[what])}: {exc}")
+            elif new:
                 where = f" ({self.topics.name})" if self.topics.name else ""
                 self._log(f"ignoring {what}{where}: {exc}")
             return None
@@ -164,13 +182,17 @@ class CameraInputs:
     def subscribe(self, node: Any, callback_group: Any = None,
                   qos_overriding_options: Any = None) -> None:
         """Subscribe ``node`` to the camera's three topics (sensor-data QoS, depth 2)."""
-        from sensor_msgs.msg import CameraInfo, Image
+        from sensor_msgs.msg import CameraInfo
 
         from semcal_ros.ros import qos
 
-        for kind, topic, callback in ((Image, self.topics.labels, self.on_labels),
+        labels_type, self._topic[LABELS] = compressed.subscription(
+            node, self.topics.labels, self.transports[LABELS])
+        image_type, self._topic[IMAGE] = compressed.subscription(
+            node, self.topics.image, self.transports[IMAGE])
+        for kind, topic, callback in ((labels_type, self._topic[LABELS], self.on_labels),
                                       (CameraInfo, self.topics.camera_info, self.on_camera_info),
-                                      (Image, self.topics.image, self.on_image)):
+                                      (image_type, self._topic[IMAGE], self.on_image)):
             node.create_subscription(kind, topic, callback, qos.sensor(2),
                                      callback_group=callback_group,
                                      qos_overriding_options=qos_overriding_options)
@@ -202,7 +224,7 @@ class CameraInputs:
 
         snap = self.snapshot()
         return camera_problems(camera_frame_id, snap.labels, snap.labels_frame, snap.camera,
-                               self._resolve(self.topics.labels),
+                               self._resolve(self._topic[LABELS]),
                                self._resolve(self.topics.camera_info))
 
     def values(self) -> dict[str, Any]:

@@ -53,13 +53,19 @@ class SegmenterNode(Node):
                                                qos_overriding_options=overrides)
         self._last_failure = ""
         self.worker = LatestWorker(self._process, self._failed, self.opts.queue_size)
-        self.create_subscription(self.msg_type, self.in_topic, self.worker.put, qos.sensor(depth),
+        in_type, self.in_resolved = self.input()
+        self.create_subscription(in_type, self.in_resolved, self.worker.put, qos.sensor(depth),
                                  qos_overriding_options=overrides)
         self.diagnostics = Diagnostics(self, lambda: self.worker.report(self.what),
                                        self.opts.diagnostics_period)
-        self.get_logger().info(f"ready: {self.resolve_topic_name(self.in_topic)} -> "
+        self.get_logger().info(f"ready: {self.resolve_topic_name(self.in_resolved)} -> "
                                f"{self.resolve_topic_name(self.out_topic)} with "
                                f"{self.opts.model}")
+
+    def input(self) -> tuple[Any, str]:
+        """(message type, topic) of the input; the image segmenter's depends on its
+        ``image_transport``."""
+        return self.msg_type, self.in_topic
 
     def load(self, opts: Any) -> Any:
         raise NotImplementedError
@@ -71,7 +77,9 @@ class SegmenterNode(Node):
         self.worker.stop()
 
     def _process(self, msg: Any) -> None:
-        self.publisher.publish(self.segment_message(msg))
+        out = self.segment_message(msg)
+        if out is not None:  # None: the message was dropped (and said so)
+            self.publisher.publish(out)
 
     def _failed(self, text: str) -> None:
         """A new problem is always logged; the same one again at most every 5 s (a throttle

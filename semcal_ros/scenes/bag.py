@@ -7,10 +7,13 @@ repeated every ``camera_period`` seconds so a late subscriber still gets them. A
 scene (``--cameras N``) has no ``/camera/*`` topics but ``/<name>/image_raw``, ``/<name>/labels`` and
 ``/<name>/camera_info`` per camera, frame ``<name>_optical``. Messages use the
 Jazzy definitions of rosbags' type store, so the bag's type hashes match a Jazzy system.
+:func:`compress_camera_images` (``semcal scene --compressed``) turns the image topics into
+image_transport's ``<topic>/compressed`` streams (camera images JPEG, label images PNG).
 """
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -169,3 +172,62 @@ class SceneBagWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+# -- compressed camera streams (semcal scene --compressed) ---------------------------------------
+def compressed_topic(topic: str) -> str:
+    """image_transport's name of a topic's compressed stream."""
+    return topic.rstrip("/") + "/compressed"
+
+
+def compress_camera_images(bag: str | Path, jpeg_quality: int = 95) -> dict[str, str]:
+    """Rewrite a bag's ``sensor_msgs/Image`` topics as image_transport's ``<topic>/compressed``
+    (``sensor_msgs/CompressedImage``), as a recorder on a unit with little disk stores them:
+    colour images JPEG (``rgb8; jpeg compressed bgr8``), mono8 label images PNG (lossless: JPEG
+    would change class ids). Every other message is copied byte for byte, in order. Returns
+    {old topic: new topic}."""
+    from rosbags.rosbag2 import Reader
+
+    from semcal_ros.io.images import encode
+
+    bag = Path(bag)
+    tmp = bag.with_name(bag.name + ".compressing")
+    if tmp.exists():
+        raise FileExistsError(f"{tmp} exists (an interrupted earlier run?): remove it first")
+    ts = typestore()
+    renamed: dict[str, str] = {}
+    with Reader(bag) as reader:
+        writer = Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+        try:
+            out = {}
+            for conn in reader.connections:
+                if conn.msgtype == "sensor_msgs/msg/Image":
+                    renamed[conn.topic] = compressed_topic(conn.topic)
+                    out[conn.id] = writer.add_connection(renamed[conn.topic],
+                                                         "sensor_msgs/msg/CompressedImage",
+                                                         typestore=ts)
+                else:
+                    out[conn.id] = writer.add_connection(conn.topic, conn.msgtype, typestore=ts)
+            for conn, stamp_ns, raw in reader.messages():
+                if conn.topic in renamed:
+                    img = ts.deserialize_cdr(raw, conn.msgtype)
+                    channels = 1 if img.encoding in ("mono8", "8UC1") else 3
+                    data = np.asarray(img.data, np.uint8).reshape(img.height, img.step)
+                    pixels = data[:, :img.width * channels].reshape(
+                        (img.height, img.width) if channels == 1 else
+                        (img.height, img.width, 3))
+                    codec = "png" if channels == 1 else "jpeg"
+                    fmt, payload = encode(pixels, codec, "mono8" if channels == 1
+                                          else img.encoding, jpeg_quality=jpeg_quality)
+                    msg = ts.types["sensor_msgs/msg/CompressedImage"](
+                        header=img.header, format=fmt, data=np.frombuffer(payload, np.uint8))
+                    raw = ts.serialize_cdr(msg, "sensor_msgs/msg/CompressedImage")
+                writer.write(out[conn.id], stamp_ns, raw)
+        finally:
+            writer.close()
+    backup = bag.with_name(bag.name + ".raw")
+    bag.rename(backup)
+    tmp.rename(bag)
+    shutil.rmtree(backup)
+    return renamed

@@ -79,6 +79,8 @@ class CalibratorNodeParams:
     diagnostics_period: float = 1.0  # s between /diagnostics messages (0: off)
     publish_tf_static: bool = True  # also publish the result on /tf_static
     overlay_file: str = ""  # also write the overlay picture here (PNG) after each success
+    image_transport: str = "raw"  # camera image: raw, or compressed (<image_raw>/compressed)
+    labels_transport: str = "raw"  # label image: raw, or compressed (PNG only; JPEG refused)
 
     def __post_init__(self) -> None:
         if not 0 < self.feedback_period <= 1.0:
@@ -119,7 +121,9 @@ class CalibratorNode(Node):
         self._lock = threading.Lock()
         self._map: HeldMap | None = None
         self._map_refusal = ""
-        self.cameras = {t.name: CameraInputs(t, self.get_logger().error, self.resolve_topic_name)
+        self.cameras = {t.name: CameraInputs(t, self.get_logger().error, self.resolve_topic_name,
+                                             self.opts.image_transport, self.opts.labels_transport,
+                                             self.get_logger().warning)
                         for t in camera_topics(self.opts.cameras)}
         self._last: dict[str, _LastResult] = {}
         self._tf: dict[str, TransformStamped] = {}  # child frame -> its latest transform
