@@ -5,6 +5,7 @@ process, agrees with the exported form of the pose it wrote."""
 from __future__ import annotations
 
 import math
+import re
 import shlex
 import subprocess
 import sys
@@ -223,3 +224,97 @@ def test_read_framed_pose_of_a_written_result(tmp_path):
     fp = read_framed_pose(tmp_path / "result.yaml")
     np.testing.assert_allclose(fp.pose.translation, pose.translation, atol=0)
     np.testing.assert_allclose(fp.pose.quaternion, pose.quaternion, atol=1e-15)
+
+
+# --- the calibrator's /tf_static, heard by another process -----------------------------------
+#: tf2_ros is not on PyPI (docs/ros.md); this listener does what a tf2 static listener does: a
+#: reliable, transient-local subscription to /tf_static (depth 100), in a process of its own.
+TF_LISTENER = r'''
+import sys, time, rclpy, yaml
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from tf2_msgs.msg import TFMessage
+child = sys.argv[1]
+rclpy.init()
+node = rclpy.create_node("tf_static_listener")
+got = []
+qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+node.create_subscription(TFMessage, "/tf_static", lambda m: got.extend(m.transforms), qos)
+deadline = time.monotonic() + 60
+while not any(t.child_frame_id == child for t in got) and time.monotonic() < deadline:
+    rclpy.spin_once(node, timeout_sec=0.1)
+tf = [t for t in got if t.child_frame_id == child][-1]
+tr, q = tf.transform.translation, tf.transform.rotation
+print("TF " + yaml.safe_dump({"frame_id": tf.header.frame_id, "child_frame_id": child,
+                             "translation": [tr.x, tr.y, tr.z], "rotation": [q.x, q.y, q.z, q.w]},
+                            default_flow_style=True, width=10000).strip())
+'''
+
+
+@pytest.mark.ros
+def test_tf_static_of_the_calibrator_matches_the_exported_yaml(tmp_path, demo_scene):
+    rclpy = pytest.importorskip("rclpy")
+    from sensor_msgs.msg import CameraInfo, Image
+
+    from semcal_ros.io.files import pose_to_dict, read_pose
+    from semcal_ros.ros import conversions as conv
+    from semcal_ros.ros import qos
+    from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
+
+    from ros_helpers import RosGraph, spin_until
+    from test_ros_calibrator import CHEAP_ENGINE, camera_messages
+
+    graph = RosGraph(tmp_path / "logs")
+    ctx = graph.context()
+    node = rclpy.create_node("export_pose_test", context=ctx)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    try:
+        graph.start_node("calibrator", params={"map_file": str(demo_scene / "map.ply"),
+                                               **CHEAP_ENGINE})
+        watcher = DiagnosticsWatcher(node)
+        msgs = camera_messages(demo_scene)
+        pubs = {t: node.create_publisher(CameraInfo if "info" in t else Image, t,
+                                         qos.reliable(1)) for t in msgs}
+        node.create_timer(0.3, lambda: [pubs[t].publish(m) for t, m in msgs.items()])
+        spin_until(executor, lambda: watcher.get("calibrator").get("message") == "ready", 90,
+                   "the calibrator to hold a map, a label image and CameraInfo")
+        client = CalibrateClient(node)
+        client.wait_for_server(30)
+        out = client.call(executor, make_goal(read_pose(demo_scene / "initial.yaml")),
+                          timeout=180)
+        assert out.status == "succeeded", out.result.message
+        tf = out.result.transform
+        # the pose YAML an operator writes from the result, and its exported forms
+        result_yaml = tmp_path / "result.yaml"
+        result_yaml.write_text(yaml.safe_dump(pose_to_dict(
+            conv.pose_from_transform(tf), frame_id=tf.header.frame_id,
+            child_frame_id=tf.child_frame_id)))
+        listener = graph.start("tf_listener", "python", "-c", TF_LISTENER, tf.child_frame_id)
+        assert listener.wait(90) == 0, listener.log()
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        graph.close()
+        print(graph.logs())
+    heard = yaml.safe_load(re.search(r"^TF (.*)$", listener.log(), re.M).group(1))
+    assert (heard["frame_id"], heard["child_frame_id"]) == ("map", "camera_optical")
+    heard_matrix = transform(heard["translation"], Rotation.from_quat(heard["rotation"]))
+
+    def cli(fmt: str) -> str:
+        proc = subprocess.run([sys.executable, "-m", "semcal_ros.cli", "export-pose",
+                               str(result_yaml), "--format", fmt], capture_output=True,
+                              text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout
+
+    v, parent, child = parse_static_tf(cli("static-tf"))
+    assert (parent, child) == ("map", "camera_optical")
+    line = transform([v["x"], v["y"], v["z"]],
+                     Rotation.from_quat([v["qx"], v["qy"], v["qz"], v["qw"]]))
+    np.testing.assert_allclose(line, heard_matrix, atol=1e-9, rtol=0)
+    matrix = yaml.safe_load(cli("matrix"))
+    np.testing.assert_allclose(np.array(matrix["T_map_camera_optical"]), heard_matrix,
+                               atol=1e-9, rtol=0)
+    np.testing.assert_allclose(compose_urdf(cli("urdf"), "map", "camera_optical"),
+                               heard_matrix, atol=1e-9, rtol=0)

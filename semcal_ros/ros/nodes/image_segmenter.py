@@ -1,9 +1,9 @@
 """``image_segmenter``: camera images in, Cityscapes trainId label images out.
 
 Subscribes ``image`` (rgb8/bgr8, sensor-data QoS; with ``image_transport: compressed`` the
-CompressedImage stream ``<resolved image topic>/compressed``, JPEG or PNG), runs the user's ONNX model
-(:class:`~semcal_ros.segmentation.image.ImageSegmenter`, parameters ``model`` and ``model_config``)
-and publishes ``labels`` (mono8 trainIds, 255 = ignored) with the input's header, so the label
+CompressedImage stream ``<resolved image topic>/compressed``, JPEG or PNG), runs the user's ONNX
+model (:class:`~semcal_ros.segmentation.image.ImageSegmenter`, parameters ``model`` and
+``model_config``) and publishes ``labels`` (mono8 trainIds, 255 = ignored) with the input's header, so the label
 image keeps the camera's stamp and frame. Only the newest image is kept while the model runs:
 a slow model drops frames rather than falling behind. Compressed data that does not decode is
 dropped with one WARN naming the topic; the next good message is segmented.
@@ -30,7 +30,7 @@ class ImageSegmenterParams:
     model: str = ""  # ONNX model file (required)
     model_config: str = ""  # its YAML, e.g. config/models/ocrnet_cityscapes.yaml (required)
     queue_size: int = 1  # images waiting while the model runs (the oldest is dropped)
-    image_transport: str = "raw"  # raw (Image) or compressed (CompressedImage on <image>/compressed)
+    image_transport: str = "raw"  # raw (Image), or compressed (CompressedImage, <image>/compressed)
     runner: RunnerParams = field(default_factory=RunnerParams)
     diagnostics_period: float = 1.0  # s (0: off)
 
