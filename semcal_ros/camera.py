@@ -275,9 +275,9 @@ class CameraModel:
         (y/z)^2 before its radial mapping folds; plumb_bob, unused (inf)."""
         mono = self._monotonic_limit()
         if self.fisheye:
-            corners = np.array([[-margin_px, -margin_px], [self.width - 1 + margin_px, -margin_px],
-                                [-margin_px, self.height - 1 + margin_px],
-                                [self.width - 1 + margin_px, self.height - 1 + margin_px]])
+            lo, right, bottom = -0.5 - margin_px, self.width - 0.5 + margin_px, \
+                self.height - 0.5 + margin_px
+            corners = np.array([[lo, lo], [right, lo], [lo, bottom], [right, bottom]])
             rd = np.hypot((corners[:, 0] - self.cx) / self.fx, (corners[:, 1] - self.cy) / self.fy)
             theta = self._theta_from_radius(np.array([rd.max()]), mono)[0]
             return float(min(theta, mono))

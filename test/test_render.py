@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from semcal_ros.camera import CameraModel
+from semcal_ros.camera import CameraModel, equidistant_radius
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.labels import CITYSCAPES_ID, INVALID, KITTI_ID
 from semcal_ros.pose import Pose
@@ -105,3 +105,46 @@ def test_disc_rim_occludes_without_label():
     assert pole.max() - pole.min() + 1 == 5  # core radius 2 of the 4 px disc
     assert (row == CITYSCAPES_ID["building"]).sum() == 0  # the rim still hides the building
     assert (row == INVALID).sum() == len(row) - 5
+
+
+@pytest.mark.parametrize("lens", ["rational_polynomial", "equidistant"])
+@pytest.mark.parametrize("pose", [
+    GROUND_TRUTH,
+    Pose.from_body_rpy_deg([3.0, -2.0, 1.5], [2.0, 5.0, 170.0]),  # low, looking the other way
+    Pose.from_body_rpy_deg([0.0, 0.0, 30.0], [0.0, 89.0, 0.0]),  # straight down from high up
+])
+def test_fast_and_reference_are_identical_for_every_lens(world, pose, lens):
+    """Each lens model (docs/lenses.md) through both renderers, with the falloff, core and
+    level of detail the engine uses; one and two threads."""
+    cam = (CameraModel.rational_fov(960, 600, 120.0) if lens == "rational_polynomial"
+           else CameraModel.fisheye_fov(960, 600, 185.0))
+    pmap = prepare_map(world, center=pose.translation)
+    view = make_view(cam, pose, pmap.origin, 32.0, 8.0, depth_falloff=0.3, core_fraction=0.6,
+                     lod_radius=1.0)
+    a = reference.render(pmap, view)
+    assert (a != INVALID).mean() > 0.05
+    np.testing.assert_array_equal(a, fast.render(pmap, view))
+    np.testing.assert_array_equal(fast.render_keys(pmap, view, 1), fast.render_keys(pmap, view, 2))
+
+
+def test_fisheye_draws_beside_and_behind_the_image_plane(world):
+    """A 185 deg fisheye draws map points more than 90 deg from its axis (z < 0 in the camera),
+    outside the circle where the 90 deg rays land; the pinhole of the same pose draws fewer
+    points in all."""
+    pose = GROUND_TRUTH
+    fish = CameraModel.fisheye_fov(960, 600, 185.0)
+    pmap = prepare_map(world, center=pose.translation)
+    view = make_view(fish, pose, pmap.origin, 32.0, 8.0)
+    u, v, _, _, _ = reference.project_points(pmap, view)
+    r, t = view.rotation, view.translation
+    pc = pmap.xyz.astype(np.float64) @ r.T + t
+    behind = pc[:, 2] < 0
+    uv, seen = fish.project(pc)
+    drawn_behind = seen & behind
+    assert drawn_behind.sum() > 100
+    # they land outside the circle of the 90 deg rays: radius f theta_d(90 deg) (equidistant)
+    radius = np.hypot((uv[drawn_behind, 0] - fish.cx) / fish.fx,
+                      (uv[drawn_behind, 1] - fish.cy) / fish.fy)
+    assert radius.min() >= equidistant_radius(np.pi / 2, *fish.d) - 1e-9
+    pin = make_view(camera(), pose, pmap.origin, 32.0, 8.0)
+    assert len(reference.project_points(pmap, pin)[0]) < len(u)

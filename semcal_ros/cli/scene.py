@@ -36,6 +36,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "southwest, northwest, north, east, south, west; at most 8), each in "
                         "cameras/<name>/ with its own bag topics /<name>/labels etc. (default: "
                         "one camera, the single-camera folder)")
+    p.add_argument("--lens", choices=("pinhole", "fisheye", "wide"),
+                   help="the camera's lens: pinhole (default, 90 deg), fisheye (185 deg "
+                        "equidistant) or wide (120 deg rational_polynomial); camera_info.yaml "
+                        "carries the model, the label image is ray-cast through it "
+                        "(docs/lenses.md)")
     p.add_argument("--catalogue", metavar="NAME",
                    help="a scene of the evaluation table (e.g. roundabout-sparse): sets kind, "
                         "variant, size, lines, frame and mast; --seed still applies")
@@ -79,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                "threads": args.threads}
     for arg, field in (("scans", "scans"), ("lines", "lines"), ("voxel", "voxel"),
                        ("horizontal_step", "horizontal_step_deg"), ("frame", "map_frame"),
-                       ("mast", "mast"), ("cameras", "cameras")):
+                       ("mast", "mast"), ("cameras", "cameras"), ("lens", "lens")):
         if getattr(args, arg) is not None:
             changes[field] = getattr(args, arg)
     options = replace(options, **changes)
@@ -95,6 +100,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result.out}: {s['kind']}/{s['variant']} seed {s['seed']}, "
           f"{s['counts']['scans']} scans, {s['lidar']['lines']} lines, "
           f"map {s['counts']['map_points']} points, frame {options.map_frame}, "
-          f"mast {options.mast}, {s['seconds']['total']:.1f} s"
+          f"mast {options.mast}, lens {options.lens}, {s['seconds']['total']:.1f} s"
           + (f", cameras {', '.join(s['cameras'])}" if "cameras" in s else ""))
     return 0

@@ -24,7 +24,7 @@ from semcal_ros.io.files import (
 )
 from semcal_ros.io.ply import write_ply
 from semcal_ros.mapping.filters import voxel_downsample
-from semcal_ros.labels import CITYSCAPES, SEMANTIC_KITTI, SKY, LabelMapping
+from semcal_ros.labels import CITYSCAPES, INVALID, SEMANTIC_KITTI, SKY, LabelMapping
 from semcal_ros.camera import CameraModel
 from semcal_ros.pose import BODY_FROM_OPTICAL, Pose
 from semcal_ros.scenes import props
@@ -36,7 +36,8 @@ from semcal_ros.scenes.layouts import (
 )
 from semcal_ros.scenes.mesh import LabelledMesh, MeshBuilder
 from semcal_ros.scenes.rig import MAX_CAMERAS, RigCamera, camera_rig
-from semcal_ros.scenes.sensors import LidarSpec, World, default_camera, pixel_rays, rotate, scan
+from semcal_ros.scenes.sensors import (LENSES, LidarSpec, World, default_camera, lens_camera,
+                                      pixel_reach, pixel_rays, rotate, scan)
 from semcal_ros.scenes.shading import shade, to_image
 
 VARIANTS = ("ideal", "noisy_labels", "dynamic", "sparse", "pose_noise")
@@ -73,6 +74,7 @@ class SceneOptions:
     map_frame: str = "layout"  # "random": the whole scene rotated about z and shifted (MapFrame)
     mast: str = "pole"  # "bracket": the camera's housing, visor and arm on the mast too
     cameras: int = 1  # >= 2: a rig of named cameras round a junction (scenes.rig, cameras/<name>/)
+    lens: str = "pinhole"  # fisheye (185 deg equidistant) or wide (120 deg rational_polynomial)
 
     def validate(self) -> None:
         if self.scans < 2:
@@ -94,6 +96,8 @@ class SceneOptions:
             raise ValueError(f"unknown mast '{self.mast}' (choose from {', '.join(MASTS)})")
         if not 1 <= self.cameras <= MAX_CAMERAS:
             raise ValueError(f"cameras must be in 1..{MAX_CAMERAS}, got {self.cameras}")
+        if self.lens not in LENSES:
+            raise ValueError(f"unknown lens '{self.lens}' (choose from {', '.join(LENSES)})")
 
 
 #: Named sizes of ``semcal scene --size``. ``small`` is the test and demo scene: a shorter drive
@@ -180,7 +184,7 @@ class ViewCrop:
         camera = camera or default_camera()
         self.radius = radius
         self.yaw = float(np.radians(camera_pose.body_rpy_deg()[2]))
-        half_fov = np.degrees(np.arctan2(camera.width / 2.0, camera.fx))
+        half_fov = camera.half_fov_deg()
         self.half_angle = float(np.radians(min(180.0, half_fov + margin_deg)))
 
     def contains(self, rel_xyz: np.ndarray) -> np.ndarray:
@@ -333,11 +337,13 @@ def camera_images(world: World, pose: Pose, moving: LabelledMesh, options: Scene
                   rgb: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Label image (trainIds, sky where nothing is hit) and shaded RGB image of the camera
     (None without ``rgb``)."""
-    camera = default_camera()
+    camera = lens_camera(options.lens)
     dirs = pixel_rays(camera, pose)
     hits = world.cast(pose.translation, dirs, moving)
     labels = np.where(hits.hit, kitti_to_train_id()[hits.label], SKY).astype(np.uint8)
     labels = labels.reshape(camera.height, camera.width)
+    if options.lens != "pinhole":  # pixels outside the lens' reach are no class at all
+        labels[~pixel_reach(camera)] = INVALID
     if noisy:
         labels = add_label_noise(labels, rng_noise)
     if not rgb:
@@ -502,7 +508,7 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     # cameras: the first one's files at the top (the single-camera format), a rig's every
     # camera's under cameras/<name>/ (docs/scenes.md)
     t0 = time.perf_counter()
-    camera = default_camera()
+    camera = lens_camera(options.lens)
     frames = []
     for k, cam in enumerate(rig):
         labels_k, rgb_k = camera_images(world, cam.pose, actors_at(image_actors, t_camera),
@@ -545,9 +551,10 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     rng_lidar = _rng(seed, kind, "lidar")
     origin = rig[0].pose.translation
     view_crop: ViewCrop | ViewsCrop = ViewCrop(truth_layout, options.map_radius,
-                                               options.map_view_margin_deg)
+                                               options.map_view_margin_deg, camera)
     if multi:
-        view_crop = ViewsCrop([(ViewCrop(c.pose, options.map_radius, options.map_view_margin_deg),
+        view_crop = ViewsCrop([(ViewCrop(c.pose, options.map_radius, options.map_view_margin_deg,
+                                         camera),
                                 c.pose.translation) for c in rig], origin)
     accumulators = {"map.ply": MapAccumulator(view_crop, origin, options.scan_crop,
                                               options.voxel, frame)}
@@ -598,7 +605,7 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
         "kind": kind, "seed": int(seed), "variant": variant,
         "generator_version": GENERATOR_VERSION,
         "options": {k: v for k, v in asdict(replace(options, lines=lines)).items()
-                    if k != "cameras" or multi},
+                    if (k != "cameras" or multi) and (k != "lens" or options.lens != "pinhole")},
         "lidar": {"lines": lines, "fov_deg": [spec.fov_down_deg, spec.fov_up_deg],
                   "horizontal_step_deg": spec.horizontal_step_deg, "max_range": spec.max_range,
                   "range_noise": spec.range_noise, "height": LIDAR_HEIGHT,

@@ -165,21 +165,57 @@ def pixel_rays(camera: CameraModel, pose: Pose, supersample: int = 1) -> np.ndar
     """Unit ray directions in the map frame through pixel centres (row-major, (H*s)*(W*s), 3).
 
     Pixel centres are at integer coordinates, as in :meth:`CameraModel.project`; with
-    ``supersample`` s, each pixel is covered by s x s evenly spread sub-rays (distortion is
-    ignored: the generated cameras have none).
+    ``supersample`` s, each pixel is covered by s x s evenly spread sub-rays. A distortion-free
+    pinhole keeps its closed form (the pinned pinhole scenes); any other lens goes through
+    :meth:`CameraModel.unproject`, so a fisheye's label image is what the fisheye sees, rays
+    beyond 90 deg included (pixels the lens cannot reach: :func:`pixel_reach`).
     """
     s = supersample
     offs = (np.arange(s) + 0.5) / s - 0.5
     u = (np.arange(camera.width)[:, None] + offs[None]).ravel()
     v = (np.arange(camera.height)[:, None] + offs[None]).ravel()
     uu, vv = np.meshgrid(u, v)
-    x = (uu - camera.cx) / camera.fx
-    y = (vv - camera.cy) / camera.fy
-    d = np.stack([x, y, np.ones_like(x)], -1).reshape(-1, 3)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    if _plain_pinhole(camera):
+        x = (uu - camera.cx) / camera.fx
+        y = (vv - camera.cy) / camera.fy
+        d = np.stack([x, y, np.ones_like(x)], -1).reshape(-1, 3)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+    else:
+        d, _ = camera.unproject(np.stack([uu.ravel(), vv.ravel()], 1))
     return rotate(d.astype(np.float32), pose.rotation)
+
+
+def _plain_pinhole(camera: CameraModel) -> bool:
+    return camera.model == "plumb_bob" and not np.any(camera.d)
+
+
+def pixel_reach(camera: CameraModel) -> np.ndarray:
+    """(H, W) bool: pixels whose ray the lens model reaches (all of them unless the image is
+    larger than a fisheye's image circle or reaches beyond a polynomial's fold)."""
+    if _plain_pinhole(camera):
+        return np.ones((camera.height, camera.width), bool)
+    uu, vv = np.meshgrid(np.arange(camera.width, dtype=float), np.arange(camera.height, dtype=float))
+    _, ok = camera.unproject(np.stack([uu.ravel(), vv.ravel()], 1))
+    return ok.reshape(camera.height, camera.width)
+
+
+#: ``semcal scene --lens``: the scene camera's lens (all 960x600, square pixels, centred)
+LENSES = ("pinhole", "fisheye", "wide")
 
 
 def default_camera() -> CameraModel:
     """960x600, 90 deg horizontal field of view, no distortion (as in the paper's CARLA setup)."""
     return CameraModel.from_fov(960, 600, 90.0)
+
+
+def lens_camera(lens: str = "pinhole") -> CameraModel:
+    """The scene camera through ``lens``: ``pinhole`` (the paper's 90 deg, no distortion),
+    ``fisheye`` (185 deg across the width, equidistant; about 217 deg on the diagonal) or
+    ``wide`` (120 deg across the width, rational_polynomial barrel distortion)."""
+    if lens == "pinhole":
+        return default_camera()
+    if lens == "fisheye":
+        return CameraModel.fisheye_fov(960, 600, 185.0)
+    if lens == "wide":
+        return CameraModel.rational_fov(960, 600, 120.0)
+    raise ValueError(f"unknown lens '{lens}' (choose from {', '.join(LENSES)})")
