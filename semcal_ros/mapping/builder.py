@@ -25,6 +25,9 @@ import numpy as np
 from semcal_ros.cloud import LabelledCloud
 from semcal_ros.labels import LabelMapping
 from semcal_ros.mapping import filters
+from semcal_ros.mapping.deskew import (
+    DeskewParams, body_twist, correct_vertical_angle, deskew_points, point_times,
+    twists_from_poses)
 from semcal_ros.mapping.pose_stream import PoseStream, as_matrix
 from semcal_ros.mapping.registration import (
     PairResult, RegistrationCloud, RegistrationParams, merge_registration, register_group,
@@ -49,7 +52,9 @@ class MapBuildParams:
     crop_margin: float = 5.0  # scans are cropped this much wider (ICP may move them)
     max_scans: int = 0  # > 0: the map is full after this many scans
     pose_tolerance: float = 0.02  # seconds a scan may lie beyond the pose stream
+    vertical_angle_deg: float = 0.0  # elevation correction of every point (KITTI HDL-64E: 0.205)
     registration: RegistrationParams = field(default_factory=RegistrationParams)
+    deskew: DeskewParams = field(default_factory=lambda: DeskewParams(source="field"))
 
     def __post_init__(self) -> None:
         if not self.d_max > 0 or self.d_min < 0 or self.d_min >= self.d_max:
@@ -149,6 +154,7 @@ class StreamingMapBuilder:
         self.timings = {"filter": 0.0, "icp": 0.0, "merge": 0.0}
         self.points_in = 0
         self.points_kept = 0
+        self.deskewed = 0  # scans motion-compensated
         self._offered = 0  # add_scan calls, accepted or not (default scan ids)
         self.poses.clear()
 
@@ -172,8 +178,13 @@ class StreamingMapBuilder:
         self.poses.add(stamp, pose)
 
     def add_scan(self, cloud: Any, pose: Any = None, stamp: float = 0.0,
-                 scan_id: str | None = None) -> ScanReport:
+                 scan_id: str | None = None, twist: np.ndarray | None = None) -> ScanReport:
         """Add one scan (lidar frame); ``pose`` None looks it up in the pose stream at ``stamp``.
+
+        With de-skew on (``params.deskew``) and per-point times (a ``t``/``time``/``timestamp``
+        field, or the azimuth with ``deskew.source`` azimuth/auto), the points are moved into the
+        lidar frame of ``stamp`` first, with ``twist`` (the lidar's body velocity, per second) or
+        else the velocity from the pose stream around ``stamp`` or from the previous scan's pose.
 
         Raises :class:`ScanRejected` with a message naming the problem (no x/y/z, no pose for its
         time, out of time order, empty after filtering, map full); nothing is changed then.
@@ -182,12 +193,13 @@ class StreamingMapBuilder:
         self._offered += 1
         scan_id = str(self._offered - 1) if scan_id is None else str(scan_id)
         try:
-            return self._add(cloud, pose, float(stamp), scan_id, t0)
+            return self._add(cloud, pose, float(stamp), scan_id, t0, twist)
         except ScanRejected as exc:
             self.skipped.append((scan_id, str(exc)))
             raise
 
-    def _add(self, cloud: Any, pose: Any, stamp: float, scan_id: str, t0: float) -> ScanReport:
+    def _add(self, cloud: Any, pose: Any, stamp: float, scan_id: str, t0: float,
+             twist: np.ndarray | None = None) -> ScanReport:
         p = self.params
         if self.is_full:
             raise ScanRejected(f"scan {scan_id}: map is full ({p.max_scans} scans)", "full")
@@ -204,6 +216,7 @@ class StreamingMapBuilder:
         except ValueError as exc:
             raise ScanRejected(f"scan {scan_id}: {exc}", "pose") from None
         lidar = vehicle @ self.extrinsic
+        scan = self._deskew(scan, stamp, lidar, pose is None, twist, scan_id)
         kept = self._filter_scan(scan, lidar)
         if len(kept) == 0:
             raise ScanRejected(f"scan {scan_id}: no points left after filtering ({len(scan)} in, "
@@ -221,6 +234,40 @@ class StreamingMapBuilder:
         self.timings["filter"] += time.perf_counter() - t0
         merges = self._push(_Node(kept, np.array([index]), reg), 0)
         return ScanReport(index, len(scan), len(kept), merges, time.perf_counter() - t0)
+
+    def _deskew(self, scan: LabelledCloud, stamp: float, lidar: np.ndarray, from_stream: bool,
+                twist: np.ndarray | None, scan_id: str) -> LabelledCloud:
+        """The scan with its points in the lidar frame of ``stamp`` (docs/mapping.md, De-skew),
+        after the elevation correction; unchanged without per-point time or a velocity."""
+        p = self.params
+        xyz = correct_vertical_angle(scan.xyz, p.vertical_angle_deg)
+        try:
+            times = point_times(xyz, scan.extra, p.deskew)
+        except ValueError as exc:
+            raise ScanRejected(f"scan {scan_id}: {exc}", "fields") from None
+        if times is not None and twist is None:
+            twist = self._velocity(stamp, lidar, from_stream)
+        if times is not None and twist is not None:
+            xyz = deskew_points(xyz, times, twist)
+            self.deskewed += 1
+        elif p.vertical_angle_deg == 0:
+            return scan
+        return LabelledCloud(xyz, scan.label, scan.extra)
+
+    def _velocity(self, stamp: float, lidar: np.ndarray, from_stream: bool) -> np.ndarray | None:
+        """The lidar's body twist at ``stamp``: from the pose stream half a sweep either side,
+        else from the previous scan's pose (within ``deskew.max_gap``)."""
+        half = self.params.deskew.period / 2
+        if from_stream:
+            try:
+                before = self.poses.at(stamp - half) @ self.extrinsic
+                after = self.poses.at(stamp + half) @ self.extrinsic
+                return body_twist(before, after, 2 * half)
+            except ValueError:
+                pass
+        if self._priors and 0 < stamp - self._stamps[-1] <= self.params.deskew.max_gap:
+            return body_twist(self._priors[-1], lidar, stamp - self._stamps[-1])
+        return None
 
     def _filter_scan(self, scan: LabelledCloud, lidar_pose: np.ndarray) -> LabelledCloud:
         p = self.params
@@ -363,6 +410,16 @@ def build_map(scans: Iterable[ScanInput], params: MapBuildParams | None = None,
     t0 = time.perf_counter()
     items = sorted(scans, key=lambda s: s.stamp)
     builder = StreamingMapBuilder(params, lidar_extrinsic, mapping)
+    twists: list[np.ndarray | None] = [None] * len(items)
+    p = builder.params
+    if p.deskew.enabled and p.deskew.source != "none" and len(items) > 1:
+        try:  # central differences: the velocity at each scan, not the one before it
+            lidar = np.array([as_matrix(item.pose) @ builder.extrinsic for item in items])
+            stamps = np.array([item.stamp for item in items], float)
+            if np.all(np.diff(stamps) > 0):
+                twists = twists_from_poses(lidar, stamps, p.deskew.max_gap)
+        except ValueError:
+            pass  # a bad pose is reported by add_scan
     load = 0.0
     bar = tqdm(items, desc="scans", unit="scan", disable=not progress, leave=False)
     for i, item in enumerate(bar):
@@ -376,7 +433,7 @@ def build_map(scans: Iterable[ScanInput], params: MapBuildParams | None = None,
         finally:
             load += time.perf_counter() - tl
         try:
-            builder.add_scan(cloud, item.pose, item.stamp, scan_id)
+            builder.add_scan(cloud, item.pose, item.stamp, scan_id, twists[i])
         except ScanRejected:
             pass  # recorded in builder.skipped
         bar.set_postfix(kept=builder.points_kept, skipped=len(builder.skipped))

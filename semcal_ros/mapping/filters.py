@@ -48,6 +48,10 @@ def as_scan_cloud(data: Any, what: str = "scan") -> LabelledCloud:
     extra = {}
     if "intensity" in fields:
         extra["intensity"] = np.asarray(fields["intensity"], dtype=np.float32).reshape(-1)
+    for name in ("t", "time", "timestamp"):  # per-point time for de-skew (deskew.TIME_FIELDS)
+        if name in fields:
+            extra[name] = np.asarray(fields[name], dtype=np.float64).reshape(-1)
+            break
     return LabelledCloud(xyz, label, extra)
 
 

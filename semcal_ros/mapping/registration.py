@@ -276,28 +276,7 @@ def register_group(clouds: list[RegistrationCloud], weights: list[float] | None 
         init = pairs[1].transformation @ pairs[0].transformation if chained else None
         pairs.append(pairwise_icp(clouds[0], clouds[2], params, 0, 2, init,
                                   first_stage=len(params.icp_voxels) - 1 if chained else 0))
-    # Initial node poses from the odometry chain; node pose maps the member into the map frame,
-    # and an edge (s, t, T) says T ~ inv(node_t) @ node_s.
-    nodes = [np.eye(4)]
-    for i in range(1, n):
-        odo = next((p for p in pairs if p.source == i - 1 and p.target == i and p.accepted), None)
-        nodes.append(nodes[-1] @ (np.linalg.inv(odo.transformation) if odo else np.eye(4)))
-    accepted = [p for p in pairs if p.accepted]
-    if accepted:
-        graph = _reg.PoseGraph()
-        for node in nodes:
-            graph.nodes.append(_reg.PoseGraphNode(node))
-        for p in accepted:
-            graph.edges.append(_reg.PoseGraphEdge(
-                p.source, p.target, p.transformation, p.information,
-                uncertain=(p.target - p.source) > 1))
-        option = _reg.GlobalOptimizationOption(
-            max_correspondence_distance=params.max_correspondence[-1],
-            edge_prune_threshold=params.edge_prune_threshold, reference_node=0)
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-            _reg.global_optimization(graph, _reg.GlobalOptimizationLevenbergMarquardt(),
-                                     _reg.GlobalOptimizationConvergenceCriteria(), option)
-        nodes = [np.asarray(node.pose) for node in graph.nodes]
+    nodes = _optimise_graph(n, pairs, params, reference=0)
     corrections = list(nodes)
     for members in _components(n, pairs):
         if len(members) < 2:
@@ -307,4 +286,72 @@ def register_group(clouds: list[RegistrationCloud], weights: list[float] | None 
         anchored = anchor([nodes[i] for i in members], w[members], center)
         for i, c in zip(members, anchored):
             corrections[i] = c
+    return GroupResult(corrections, pairs)
+
+
+def _optimise_graph(n: int, pairs: list[PairResult], params: RegistrationParams,
+                    reference: int) -> list[np.ndarray]:
+    """Node poses (4x4, map frame, applied on the left of each member) from the accepted edges:
+    the odometry chain as the start, then Open3D's pose-graph optimisation with ``reference``
+    held fixed. An edge (s, t, T) says T ~ inv(node_t) @ node_s; edges further than one apart
+    are uncertain (the optimiser may prune them)."""
+    nodes = [np.eye(4)] * n
+    for i in range(reference + 1, n):  # chain outwards from the reference
+        odo = next((p for p in pairs if p.source == i - 1 and p.target == i and p.accepted), None)
+        nodes[i] = nodes[i - 1] @ (np.linalg.inv(odo.transformation) if odo else np.eye(4))
+    for i in range(reference - 1, -1, -1):
+        odo = next((p for p in pairs if p.source == i and p.target == i + 1 and p.accepted), None)
+        nodes[i] = nodes[i + 1] @ (odo.transformation if odo else np.eye(4))
+    accepted = [p for p in pairs if p.accepted]
+    if not accepted:
+        return nodes
+    graph = _reg.PoseGraph()
+    for node in nodes:
+        graph.nodes.append(_reg.PoseGraphNode(node))
+    for p in accepted:
+        graph.edges.append(_reg.PoseGraphEdge(
+            p.source, p.target, p.transformation, p.information,
+            uncertain=(p.target - p.source) > 1))
+    option = _reg.GlobalOptimizationOption(
+        max_correspondence_distance=params.max_correspondence[-1],
+        edge_prune_threshold=params.edge_prune_threshold, reference_node=reference)
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        _reg.global_optimization(graph, _reg.GlobalOptimizationLevenbergMarquardt(),
+                                 _reg.GlobalOptimizationConvergenceCriteria(), option)
+    return [np.asarray(node.pose) for node in graph.nodes]
+
+
+def register_chain(clouds: list[RegistrationCloud], reference: int,
+                   params: RegistrationParams | None = None, loop_span: int = 2) -> GroupResult:
+    """Multiway ICP of time-ordered scans with one of them held fixed (no re-anchoring).
+
+    For a camera on the vehicle: the camera at frame i is tied to scan i, so scan i must stay
+    exactly where it is and the others are registered to it (``register_group`` instead keeps the
+    group's mean pose, right for a roadside map in the poses' world frame). Edges: neighbours,
+    and scans up to ``loop_span`` apart (uncertain), started from the chained neighbour edges.
+    Scans no accepted edge connects to the reference keep their poses (correction identity).
+    """
+    params = params or RegistrationParams()
+    n = len(clouds)
+    if not 0 <= reference < max(n, 1):
+        raise ValueError(f"reference scan {reference} is not among the {n} scans")
+    if n < 2:
+        return GroupResult([np.eye(4)] * n, [])
+    pairs = [pairwise_icp(clouds[i], clouds[i + 1], params, i, i + 1) for i in range(n - 1)]
+    last = len(params.icp_voxels) - 1
+    for span in range(2, loop_span + 1):
+        for i in range(n - span):
+            chain = [pairs[k] for k in range(i, i + span)]
+            init = None
+            if all(p.accepted for p in chain):
+                init = np.eye(4)
+                for p in chain:
+                    init = p.transformation @ init
+            pairs.append(pairwise_icp(clouds[i], clouds[i + span], params, i, i + span, init,
+                                      first_stage=last if init is not None else 0))
+    nodes = _optimise_graph(n, pairs, params, reference)
+    fixed = np.linalg.inv(nodes[reference])  # held by the optimiser; exact identity here
+    connected = next(c for c in _components(n, pairs) if reference in c)
+    corrections = [fixed @ nodes[i] if i in connected else np.eye(4) for i in range(n)]
+    corrections[reference] = np.eye(4)
     return GroupResult(corrections, pairs)

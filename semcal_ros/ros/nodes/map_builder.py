@@ -5,6 +5,9 @@ SemanticKITTI ids; unlabelled scans go through ``cloud_segmenter`` first), and t
 with ``lidar_extrinsic``, the vehicle's) pose in the map frame on ``odom`` (nav_msgs/Odometry) or
 ``pose`` (geometry_msgs/PoseStamped). A scan gets its pose by interpolating the pose stream at the
 scan's stamp, so a scan waits (bounded queue) until a pose at or after its stamp has arrived.
+A scan with a per-point time field (``t``, ``time``, ``timestamp``: Ouster, Velodyne, Livox
+drivers) is de-skewed with the pose stream's motion around its stamp (``mapping.deskew.*``;
+diagnostics value ``scans_deskewed``).
 
 The work happens in a thread of its own, so a slow registration never blocks the subscriptions:
 callbacks only convert and enqueue. The map (x, y, z, label) is published on ``map`` (transient
@@ -335,7 +338,8 @@ class MapBuilderNode(Node):
             "resets": c.resets, "last_reset": self.last_reset or "none",
             "strays_dropped": strays, "map_points": self.published[0],
             "map_scans": self.published[1],
-            "poses": len(self.builder.poses), "last_error": self.last_error or "none",
+            "poses": len(self.builder.poses), "scans_deskewed": self.builder.deskewed,
+            "last_error": self.last_error or "none",
         }
         values.update({f"rejected.{k}": v for k, v in c.rejected.items()})
         if waiting:
