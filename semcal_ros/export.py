@@ -184,8 +184,8 @@ def to_matrix(fp: FramedPose) -> str:
     ``convention:`` line."""
     forward = homogeneous(fp.pose)
 
-    def rows(m: np.ndarray) -> list[list[float]]:
-        return [[float(_num(v)) for v in row] for row in m]
+    def rows(m: np.ndarray) -> list[list[float]]:  # YAML writes floats with repr; no -0.0
+        return [[float(v) + 0.0 for v in row] for row in m]
 
     data = {"convention": MATRIX_CONVENTION,
             f"T_{fp.parent}_{fp.child}": rows(forward),
