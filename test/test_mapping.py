@@ -532,3 +532,22 @@ def test_place_scans_anchors_the_chosen_scan(world):
     assert np.median(np.linalg.norm(on_world - world.xyz[idx], axis=1)) < 0.03
     with pytest.raises(ValueError, match="anchor 4 is not a scan index"):
         place_scans([x for x, _, _ in sweeps], list(noisy), 4)
+
+
+def test_placed_map_uses_the_time_field_and_keeps_labels(world):
+    """The real-scene writer's drop-in: labelled sweeps with a ``t`` field (ns) become a map in
+    scan 0's frame that lies on the world, labels kept."""
+    from scipy.spatial import cKDTree
+
+    from semcal_ros.mapping.placement import placed_map
+
+    start = drive(1)[0]
+    twist = np.array([9.0, 0.0, 0.0, 0.0, 0.0, np.radians(8.0)])
+    sweeps, poses = _moving_sweeps(world, start, twist, 3)
+    clouds = [LabelledCloud(x, world.label[i], {"t": t.astype(np.float64)}) for x, t, i in sweeps]
+    relative = list(np.linalg.inv(poses[0]) @ poses)
+    cloud = placed_map(clouds, relative, [0.0, 0.1, 0.2], 60.0, 0.05)
+    on_world = filters.apply_rigid(cloud.xyz, poses[0])
+    dist, idx = cKDTree(world.xyz).query(on_world)
+    assert np.median(dist) < 0.03
+    assert np.mean(cloud.label == world.label[idx]) > 0.95

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from semcal_ros.cloud import LabelledCloud
 from semcal_ros.mapping.deskew import (
     DeskewParams, azimuth_times, correct_vertical_angle, deskew_points, twists_from_poses)
 from semcal_ros.mapping.filters import apply_rigid
@@ -139,4 +140,29 @@ def place_scans(scans: list[np.ndarray], poses: list[np.ndarray], anchor: int,
     return Placement(list(relative), xyz, anchor, pairs, use_deskew)
 
 
-__all__ = ["Placement", "PlacementParams", "place_scans"]
+def placed_map(clouds: list[LabelledCloud], poses: list[np.ndarray], stamps: list[float],
+               d_max: float, voxel: float, anchor: int = 0,
+               params: PlacementParams | None = None) -> LabelledCloud:
+    """The labelled map of a vehicle frame's scans in the anchor scan's lidar frame: placed by
+    :func:`place_scans` (per-point times from a ``t``/``time``/``timestamp`` field, else the
+    azimuth), limited to ``d_max``, voxel-downsampled with the majority label per voxel; dynamic
+    classes are left to the caller. The drop-in for placing scans with their given poses only
+    (same arguments as the real-scene writer's ``place_scans_with_poses``)."""
+    from semcal_ros.mapping import MapBuildParams, ScanInput, build_map
+    from semcal_ros.mapping.deskew import point_times
+
+    params = params or PlacementParams()
+    times = [point_times(c.xyz, c.extra, params.deskew) for c in clouds]
+    placed = place_scans([c.xyz for c in clouds], poses, anchor, times=times, params=params,
+                         stamps=stamps if len(clouds) > 1 else None)
+    inputs = [ScanInput(LabelledCloud(xyz, c.label), t, s, f"{i:06d}")
+              for i, (c, xyz, t, s) in enumerate(zip(clouds, placed.xyz, placed.transforms,
+                                                     stamps))]
+    result = build_map(inputs, MapBuildParams(d_max=d_max, voxel=voxel, icp=False,
+                                              remove_dynamic=False))
+    if result.skipped:
+        raise ValueError(f"scans skipped by the map builder: {result.skipped}")
+    return result.map
+
+
+__all__ = ["Placement", "PlacementParams", "place_scans", "placed_map"]
