@@ -1,7 +1,9 @@
 """``bag_player``: replays a rosbag2 into the graph (parameters: ``config/bag_player.yaml``).
 
 The node plays once (or loops) and exits when done, after reliable subscribers acknowledged the
-last messages; ``semcal replay`` is the same engine behind a command line.
+last messages; ``semcal replay`` is the same engine behind a command line. Messages go out as
+the bytes recorded, so image_transport's ``<topic>/compressed`` streams (CompressedImage) replay as
+they were recorded, for nodes with ``image_transport: compressed`` (docs/deployment.md).
 """
 
 from __future__ import annotations
