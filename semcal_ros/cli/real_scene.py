@@ -83,6 +83,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="> 0: render.crop_radius (m) in calibrator.yaml")
     p.add_argument("--seed", type=int, default=0, help="seed of initial.yaml's perturbation")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0: all cores)")
+    p.add_argument("--overlay", action="store_true",
+                   help="also write overlay.png: the map rendered at the true pose over the "
+                        "image (checks the extrinsic convention: points on poles, cars, kerbs)")
     p.set_defaults(func=run)
 
 
@@ -106,7 +109,31 @@ def run(args: argparse.Namespace) -> int:
                                crop_radius=args.crop_radius, seed=args.seed)
     report = write_real_scene(inputs, args.out, label_image, options)
     print_report(args.out, inputs, report)
+    if args.overlay:
+        if not (args.out / "ground_truth.yaml").is_file():
+            raise ValueError("--overlay needs the true extrinsic (--extrinsic or --calib)")
+        write_truth_overlay(args.out)
+        print(f"  overlay at the true pose: {args.out / 'overlay.png'}")
     return 0
+
+
+def write_truth_overlay(scene: Path, out: Path | None = None) -> Path:
+    """The scene's map rendered at its ground truth over its image, with the scene's own
+    calibrator.yaml label settings (merge, parked vehicles)."""
+    from semcal_ros.io import files, ply
+    from semcal_ros.overlay import render_overlay
+    from semcal_ros.params import CalibrationParams
+    from semcal_ros.problem import mapping_for
+
+    params = CalibrationParams.from_file(scene / "calibrator.yaml")
+    picture = render_overlay(ply.read_ply(scene / "map.ply"),
+                             files.read_camera_info(scene / "camera_info.yaml"),
+                             files.read_pose(scene / "ground_truth.yaml"),
+                             files.read_rgb_image(scene / "image.png"),
+                             mapping_for(params), params.render)
+    out = out or scene / "overlay.png"
+    files.write_rgb_image(out, picture)
+    return out
 
 
 def gather_inputs(args: argparse.Namespace):

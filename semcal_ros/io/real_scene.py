@@ -95,14 +95,9 @@ def read_point_labels(path: str | Path, n_points: int, scan: str | Path) -> np.n
 
 def label_geometric(cloud: LabelledCloud) -> np.ndarray:
     """SemanticKITTI ids from the geometric labeller (no network), its default parameters."""
-    from semcal_ros.segmentation import geometric
+    from semcal_ros.segmentation.geometric import label_scan
 
-    intensity = cloud.extra.get("intensity")
-    if intensity is None:
-        intensity = np.zeros(len(cloud), np.float32)
-    params = getattr(geometric, "GeometricParams", None)
-    return np.asarray(geometric.label_scan(cloud.xyz, intensity,
-                                           params() if params else None), np.uint16)
+    return np.asarray(label_scan(cloud.xyz, cloud.extra.get("intensity")), np.uint16)
 
 
 def transfer_labels(target: np.ndarray, sources: list[np.ndarray], source_labels: list[np.ndarray],
@@ -217,15 +212,15 @@ def label_scans(scan_paths: list[Path], clouds: list[LabelledCloud], cloud_label
 
 
 def mark_moved_vehicles(clouds: list[LabelledCloud], poses: list[np.ndarray],
-                        moved_m: float = 1.0, cluster_m: float = 0.7,
+                        moved_m: float = 1.0, seen_m: float = 1.5, cluster_m: float = 0.7,
                         min_points: int = 15) -> list[int]:
     """Relabel vehicles that moved between scans as SemanticKITTI moving classes (in place).
 
-    Each scan's vehicle points are clustered (Open3D DBSCAN); a cluster moved if the scan
-    farthest from it in the list saw that place (it has points within ``cluster_m`` of the
-    cluster's centre, map frame) but has no vehicle point within ``moved_m`` of the centre. A
-    place the other scan did not see says nothing: the vehicle is kept. Returns the number of
-    clusters relabelled per scan.
+    Each scan's vehicle points are clustered (Open3D DBSCAN). A cluster moved if the scan
+    farthest from it in the list saw that place (it has points, e.g. the ground, within
+    ``seen_m`` of the cluster's centre, horizontally, map frame) but has no vehicle point within
+    ``moved_m`` of it. A place the other scan did not see says nothing: the vehicle is kept.
+    Returns the number of clusters relabelled per scan.
     """
     import open3d as o3d
     from scipy.spatial import cKDTree
@@ -234,11 +229,11 @@ def mark_moved_vehicles(clouds: list[LabelledCloud], poses: list[np.ndarray],
         return [0] * len(clouds)
     vehicle_ids = np.array(VEHICLE_KITTI, np.uint16)
     in_map = [c.xyz @ p[:3, :3].T + p[:3, 3] for c, p in zip(clouds, poses)]
-    trees = [cKDTree(x) for x in in_map]
+    trees = [cKDTree(x[:, :2]) for x in in_map]
     vehicle_trees = []
     for c, x in zip(clouds, in_map):
         sel = np.isin(c.label, vehicle_ids)
-        vehicle_trees.append(cKDTree(x[sel]) if sel.any() else None)
+        vehicle_trees.append(cKDTree(x[sel, :2]) if sel.any() else None)
     moved_counts = []
     for i, cloud in enumerate(clouds):
         idx = np.flatnonzero(np.isin(cloud.label, vehicle_ids))
@@ -249,8 +244,8 @@ def mark_moved_vehicles(clouds: list[LabelledCloud], poses: list[np.ndarray],
             cluster = np.asarray(pcd.cluster_dbscan(cluster_m, min_points))
             for k in range(int(cluster.max(initial=-1)) + 1):
                 members = idx[cluster == k]
-                centre = in_map[i][members].mean(axis=0)
-                seen = trees[other].query_ball_point(centre, cluster_m, return_length=True) > 0
+                centre = in_map[i][members, :2].mean(axis=0)
+                seen = trees[other].query_ball_point(centre, seen_m, return_length=True) > 0
                 near = (vehicle_trees[other] is not None and
                         vehicle_trees[other].query_ball_point(centre, moved_m,
                                                               return_length=True) > 0)
@@ -318,20 +313,21 @@ def projected_truth_labels(cloud: LabelledCloud, t_cam_lidar: np.ndarray, camera
 
 
 def reachable_crop_top(map_cloud: LabelledCloud, camera: CameraModel, initial: Pose,
-                       margin_deg: float, quantile: float = 0.001) -> float:
+                       margin_deg: float, min_points: int = 5) -> float:
     """Share of image rows from the top that no map point reaches, seen from ``initial``.
 
-    The map's top edge in the image (a low quantile of the projected rows, so a few stray points
-    do not decide it) moved up by the rows ``margin_deg`` of pitch spans (the search may tilt the
-    camera that far), rounded down to 1/100. Uses the initial guess only, never the truth.
+    The map's top edge in the image (the row of the ``min_points``-th highest projected point,
+    so one stray point does not decide it) moved up by the rows ``margin_deg`` of pitch spans
+    (the search may tilt the camera that far), rounded down to 1/100. Uses the initial guess
+    only, never the truth.
     """
     pts = initial.transform_points(map_cloud.xyz)
     front = pts[:, 2] > 0.5
     uv, _ = camera.project(pts[front])
     inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] < camera.height)
-    if inside.sum() < 100:
+    if inside.sum() < min_points:
         return 0.0
-    top = float(np.quantile(uv[inside, 1], quantile))
+    top = float(np.partition(uv[inside, 1], min_points - 1)[min_points - 1])
     rows = top - camera.fy * math.tan(math.radians(margin_deg))
     return max(0.0, math.floor(100.0 * rows / camera.height) / 100.0)
 
