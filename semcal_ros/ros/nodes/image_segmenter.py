@@ -56,7 +56,9 @@ class ImageSegmenterNode(SegmenterNode):
         try:  # rgb8 / bgr8, or JPEG / PNG (ValueError names any other encoding or format)
             rgb = compressed.to_rgb(msg)
         except UndecodableImage as exc:
-            self.get_logger().warning(f"dropping an image on {self.in_resolved}: {exc}")
+            # a broken stream warns at most every 5 s, not once per frame
+            self.get_logger().warning(f"dropping an image on {self.in_resolved}: {exc}",
+                                      throttle_duration_sec=5.0)
             return None
         return conv.numpy_to_image(self.segmenter.segment(rgb, "rgb8"), "mono8", msg.header)
 
