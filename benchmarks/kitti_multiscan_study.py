@@ -211,7 +211,7 @@ def _line(row: dict, args: argparse.Namespace, markdown: bool = False) -> str:
         parts += ["", "", "", ""]
     if markdown:
         return "| " + " | ".join(parts) + " |"
-    return "  ".join(parts)
+    return "  ".join(parts) + f"  (map built in {row['build_s']:.1f} s)"
 
 
 if __name__ == "__main__":

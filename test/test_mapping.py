@@ -424,7 +424,8 @@ def _moving_sweeps(world, start: np.ndarray, twist: np.ndarray, count: int, peri
         pose0 = start @ _pose_from(rot[0].as_matrix(), trans[0])
         poses.append(pose0)
         local0 = (world.xyz - pose0[:3, 3]) @ pose0[:3, :3]
-        sel = np.flatnonzero((np.linalg.norm(local0, axis=1) < 30) & (rng.random(len(local0)) < 0.7))
+        near = np.linalg.norm(local0, axis=1) < 30
+        sel = np.flatnonzero(near & (rng.random(len(local0)) < 0.7))
         az = np.mod(np.arctan2(local0[sel, 1], local0[sel, 0]) + np.pi, 2 * np.pi)  # 0 behind
         t = az / (2 * np.pi) * period
         t_ns = np.round(t * 1e9).astype(np.int64)

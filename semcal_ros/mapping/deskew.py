@@ -144,9 +144,9 @@ def azimuth_times(xyz: np.ndarray, params: DeskewParams = DeskewParams()) -> np.
 def field_times(values: np.ndarray, params: DeskewParams = DeskewParams()) -> np.ndarray:
     """Seconds from the pose instant from a driver's per-point time field.
 
-    Drivers differ in unit (Ouster ``t``: ns; Velodyne ``time``: s; Livox ``timestamp``: ns, absolute)
-    and in origin, so only differences are used: ``time_unit`` (or a guess from the span: one
-    sweep lasts well under a second) and ``pose_at`` place them.
+    Drivers differ in unit (Ouster ``t``: ns; Velodyne ``time``: s; Livox ``timestamp``: ns,
+    absolute) and in origin, so only differences are used: ``time_unit`` (or a guess from the
+    span: one sweep lasts well under a second) and ``pose_at`` place them.
     """
     v = np.asarray(values, np.float64).reshape(-1)
     if len(v) == 0:

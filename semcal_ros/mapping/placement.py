@@ -141,21 +141,26 @@ def place_scans(scans: list[np.ndarray], poses: list[np.ndarray], anchor: int,
 
 
 def placed_map(clouds: list[LabelledCloud], poses: list[np.ndarray], stamps: list[float],
-               d_max: float, voxel: float, anchor: int = 0,
+               d_max: float, voxel: float, anchor: int | None = None,
                params: PlacementParams | None = None) -> LabelledCloud:
-    """The labelled map of a vehicle frame's scans in the anchor scan's lidar frame: placed by
-    :func:`place_scans` (per-point times from a ``t``/``time``/``timestamp`` field, else the
-    azimuth), limited to ``d_max``, voxel-downsampled with the majority label per voxel; dynamic
-    classes are left to the caller. The drop-in for placing scans with their given poses only
-    (same arguments as the real-scene writer's ``place_scans_with_poses``)."""
+    """The labelled map of a vehicle frame's scans, in the poses' map frame: placed by
+    :func:`place_scans` around the anchor scan (held at its given pose; default: the scan whose
+    pose is closest to the identity, i.e. the scan whose lidar frame is the map frame), with
+    per-point times from a ``t``/``time``/``timestamp`` field, else the azimuth; limited to
+    ``d_max``, voxel-downsampled with the majority label per voxel; dynamic classes are left to
+    the caller. The drop-in for placing scans with their given poses only (same arguments as the
+    real-scene writer's ``place_scans_with_poses``)."""
     from semcal_ros.mapping import MapBuildParams, ScanInput, build_map
     from semcal_ros.mapping.deskew import point_times
 
     params = params or PlacementParams()
+    poses_arr = np.asarray(poses, float)
+    if anchor is None:
+        anchor = int(np.argmin([np.abs(p - np.eye(4)).sum() for p in poses_arr]))
     times = [point_times(c.xyz, c.extra, params.deskew) for c in clouds]
-    placed = place_scans([c.xyz for c in clouds], poses, anchor, times=times, params=params,
-                         stamps=stamps if len(clouds) > 1 else None)
-    inputs = [ScanInput(LabelledCloud(xyz, c.label), t, s, f"{i:06d}")
+    placed = place_scans([c.xyz for c in clouds], list(poses_arr), anchor, times=times,
+                         params=params, stamps=stamps if len(clouds) > 1 else None)
+    inputs = [ScanInput(LabelledCloud(xyz, c.label), poses_arr[anchor] @ t, s, f"{i:06d}")
               for i, (c, xyz, t, s) in enumerate(zip(clouds, placed.xyz, placed.transforms,
                                                      stamps))]
     result = build_map(inputs, MapBuildParams(d_max=d_max, voxel=voxel, icp=False,
