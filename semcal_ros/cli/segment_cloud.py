@@ -1,6 +1,8 @@
-"""``semcal segment-cloud``: label one lidar scan with an ONNX range-image model.
+"""``semcal segment-cloud``: label one lidar scan with an ONNX range-image model or, with
+``--method geometric``, with the network-free geometric labeller
+(:mod:`semcal_ros.segmentation.geometric`).
 
-Reads a PLY (x, y, z and optionally intensity) or a KITTI ``.bin`` scan and writes the engine's
+Reads a PLY (x, y, z and optionally intensity), a PCD or a KITTI ``.bin`` scan and writes the engine's
 labelled PLY (float x, y, z, float intensity when known, ushort label = SemanticKITTI id).
 """
 
@@ -16,15 +18,23 @@ INTENSITY_FIELDS = ("intensity", "remission", "reflectance")
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "segment-cloud", help="label a lidar scan with an ONNX range-image model",
-        description="Run an ONNX range-image segmentation model (RangeNet++/SalsaNext "
-                    "convention, configured by a model config YAML, see config/models/) on one "
-                    "scan and write every point with its SemanticKITTI label.")
-    parser.add_argument("--model", required=True, type=Path, help="ONNX model file")
-    parser.add_argument("--model-config", required=True, type=Path,
-                        help="model config YAML (kind: range)")
+        "segment-cloud", help="label a lidar scan (ONNX range-image model or geometric rules)",
+        description="Label every point of one scan with its SemanticKITTI class and write it: "
+                    "--method onnx (default) runs an ONNX range-image segmentation model "
+                    "(RangeNet++/SalsaNext convention, configured by a model config YAML, see "
+                    "config/models/); --method geometric needs no model (ground segmentation, "
+                    "shape rules; docs/segmentation.md).")
+    parser.add_argument("--method", choices=("onnx", "geometric"), default="onnx",
+                        help="onnx (needs --model, --model-config) or geometric (no model)")
+    parser.add_argument("--model", type=Path, help="ONNX model file (--method onnx)")
+    parser.add_argument("--model-config", type=Path,
+                        help="model config YAML (kind: range) (--method onnx)")
+    parser.add_argument("--config", type=Path,
+                        help="--method geometric: a ROS parameter file whose cloud_segmenter "
+                             "'geometric:' group overrides the labeller's thresholds "
+                             "(default: the built-in values = config/cloud_segmenter.yaml)")
     parser.add_argument("scan", type=Path, metavar="SCAN",
-                        help="scan: .ply with x, y, z[, intensity] or KITTI .bin")
+                        help="scan: .ply with x, y, z[, intensity], .pcd, or KITTI .bin")
     parser.add_argument("--out", required=True, type=Path, help="labelled PLY to write")
     parser.add_argument("--threads", type=int, default=0,
                         help="onnxruntime threads (default 0: all cores)")
@@ -33,15 +43,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def read_scan_file(path: Path):
     """(xyz (N, 3), intensity (N,) or None) of a .ply or KITTI .bin scan."""
-    from semcal_ros.io import kitti, ply
+    from semcal_ros.io import kitti, pcd, ply
 
     suffix = path.suffix.lower()
     if suffix == ".bin":
         cloud = kitti.read_scan(path)
     elif suffix == ".ply":
         cloud = ply.read_ply(path, require_label=False)  # names a missing x, y or z
+    elif suffix == ".pcd":
+        cloud = pcd.read_pcd(path)
     else:
-        raise ValueError(f"{path}: unknown scan format '{suffix}' (expected .ply or KITTI .bin)")
+        raise ValueError(f"{path}: unknown scan format '{suffix}' "
+                         f"(expected .ply, .pcd or KITTI .bin)")
     intensity = next((cloud.extra[f] for f in INTENSITY_FIELDS if f in cloud.extra), None)
     return cloud.xyz, intensity
 
@@ -56,11 +69,28 @@ def run(args: argparse.Namespace) -> int:
     from semcal_ros.segmentation.decode import class_shares
     from semcal_ros.segmentation.onnx_runner import RunnerParams
 
-    segmenter = CloudSegmenter.from_files(args.model, args.model_config,
-                                          RunnerParams(threads=args.threads))
+    if args.method == "geometric":
+        from semcal_ros.segmentation.geometric import GeometricParams, label_scan
+
+        params = GeometricParams()
+        if args.config is not None:
+            from semcal_ros.config import apply_flat, load_node_params
+
+            flat = load_node_params(args.config, "cloud_segmenter")
+            params = apply_flat(params, {k.removeprefix("geometric."): v for k, v in flat.items()
+                                         if k.startswith("geometric.")})
+
+        def segment(xyz, intensity):
+            return label_scan(xyz, intensity, params)
+    else:
+        if args.model is None or args.model_config is None:
+            raise ValueError("--method onnx needs --model and --model-config "
+                             "(or use --method geometric)")
+        segment = CloudSegmenter.from_files(args.model, args.model_config,
+                                            RunnerParams(threads=args.threads)).segment
     xyz, intensity = read_scan_file(args.scan)
     start = time.perf_counter()
-    labels = segmenter.segment(xyz, intensity)
+    labels = segment(xyz, intensity)
     seconds = time.perf_counter() - start
     extra = {} if intensity is None else {"intensity": np.asarray(intensity, dtype=np.float32)}
     write_ply(args.out, LabelledCloud(xyz, labels, extra))

@@ -38,7 +38,7 @@ class SegmenterNode(Node):
     def __init__(self, name: str, defaults: Any) -> None:
         super().__init__(name)
         self.opts = declare_and_read(self, defaults)
-        require_model(self.opts.model, self.opts.model_config)
+        self.require(self.opts)
         try:
             self.segmenter = self.load(self.opts)
         except (ValueError, FileNotFoundError):
@@ -66,6 +66,10 @@ class SegmenterNode(Node):
         """(message type, topic) of the input; the image segmenter's depends on its
         ``image_transport``."""
         return self.msg_type, self.in_topic
+
+    def require(self, opts: Any) -> None:
+        """Refuse to start without what :meth:`load` needs (default: the model files)."""
+        require_model(opts.model, opts.model_config)
 
     def load(self, opts: Any) -> Any:
         raise NotImplementedError

@@ -1,8 +1,11 @@
 """``cloud_segmenter``: lidar scans in, the same scans with a ``label`` field out.
 
-Subscribes ``points`` (PointCloud2 with x, y, z and optionally intensity, any layout), runs the
-user's range-image ONNX model (:class:`~semcal_ros.segmentation.cloud.CloudSegmenter`, parameters
-``model`` and ``model_config``) and publishes ``labelled_points``: every input field unchanged,
+Subscribes ``points`` (PointCloud2 with x, y, z and optionally intensity, any layout), labels
+them with ``method: onnx``, the user's range-image ONNX model
+(:class:`~semcal_ros.segmentation.cloud.CloudSegmenter`, parameters ``model`` and
+``model_config``), or with ``method: geometric``, the network-free geometric labeller
+(:func:`~semcal_ros.segmentation.geometric.label_scan`, parameters ``geometric.*``, no model
+file), and publishes ``labelled_points``: every input field unchanged,
 plus ``label`` (uint16 SemanticKITTI ids), same header. Scans that already carry a ``label`` field
 (simulation, an upstream segmenter) need no segmenter: feed them to ``map_builder`` directly.
 """
@@ -20,17 +23,37 @@ from sensor_msgs.msg import PointCloud2
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros.runtime import run_node
 from semcal_ros.ros.segmenter_node import SegmenterNode
+from semcal_ros.segmentation.geometric import GeometricParams, label_scan
 from semcal_ros.segmentation.onnx_runner import RunnerParams
+
+METHODS = ("onnx", "geometric")
 
 
 @dataclass
 class CloudSegmenterParams:
-    model: str = ""  # ONNX range-image model (required)
-    model_config: str = ""  # its YAML, e.g. config/models/salsanext_semantickitti.yaml (required)
+    method: str = "onnx"  # onnx (the user's model) or geometric (no model, no network)
+    model: str = ""  # ONNX range-image model (required with method onnx)
+    model_config: str = ""  # its YAML, e.g. config/models/salsanext_semantickitti.yaml (onnx)
     intensity_field: str = "intensity"  # field fed as remission ("" or missing: none)
     queue_size: int = 5  # scans waiting while the model runs (the oldest is dropped)
     runner: RunnerParams = field(default_factory=RunnerParams)
     diagnostics_period: float = 1.0  # s (0: off)
+    geometric: GeometricParams = field(default_factory=GeometricParams)
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"parameter 'method': '{self.method}' is not one of "
+                             f"{', '.join(METHODS)}")
+
+
+class _GeometricLabeller:
+    """The geometric labeller behind the same ``segment(xyz, intensity)`` call as the model."""
+
+    def __init__(self, params: GeometricParams) -> None:
+        self.params = params
+
+    def segment(self, xyz: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
+        return label_scan(xyz, intensity, self.params)
 
 
 def add_label_field(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -51,8 +74,15 @@ class CloudSegmenterNode(SegmenterNode):
     def __init__(self) -> None:
         super().__init__("cloud_segmenter", CloudSegmenterParams())
 
+    def require(self, opts: CloudSegmenterParams) -> None:
+        if opts.method == "onnx":
+            super().require(opts)
+
     def load(self, opts: CloudSegmenterParams) -> Any:
         from semcal_ros.segmentation.cloud import CloudSegmenter
+
+        if opts.method == "geometric":
+            return _GeometricLabeller(opts.geometric)
 
         return CloudSegmenter.from_files(opts.model, opts.model_config, opts.runner)
 
