@@ -398,3 +398,20 @@ def test_compressed_scene_bag_replays_to_a_calibration(graph, client, demo_scene
     diag = watcher.get("calibrator")
     assert not any(k.startswith("input_error") for k in diag), diag
     assert "Traceback" not in cal.log()
+
+
+def test_scene_cli_writes_a_compressed_bag(tmp_path):
+    """`semcal scene --compressed` end to end (a short drive: 3 scans)."""
+    from semcal_ros.cli import main as semcal_main
+    from semcal_ros.ros.replay import open_bag
+
+    out = tmp_path / "scene"
+    assert semcal_main(["scene", "--size", "small", "--scans", "3", "--no-scans", "--quiet",
+                        "--compressed", "--out", str(out)]) == 0
+    reader = open_bag(out / "bag")
+    types = {c.topic: c.msgtype for c in reader.connections}
+    reader.close()
+    assert types["/camera/image_raw/compressed"] == "sensor_msgs/msg/CompressedImage"
+    assert types["/camera/labels/compressed"] == "sensor_msgs/msg/CompressedImage"
+    assert "/camera/image_raw" not in types and "/camera/labels" not in types
+    assert types["/lidar/points"] == "sensor_msgs/msg/PointCloud2"
