@@ -91,8 +91,9 @@ def test_unlabelled_scan_takes_labels_from_its_labelled_neighbours(truth_scene):
     assert 0.8 < share < 1.0  # most of scan 3 sees what scans 0-2 saw; the rest is dropped
     scan3 = ply.read_ply(out / "scans" / "000003.ply")
     raw = kitti.read_velodyne(KITTI / "velodyne" / "000003.bin")
-    assert len(scan3) == pytest.approx(share * len(raw), abs=1e-4 * len(raw))  # 4 digits
-    assert np.all(scan3.label > 0)
+    # the share is of the transferred labels (4 digits); moving points (252-259) then left
+    assert share * len(raw) - 0.01 * len(raw) < len(scan3) <= share * len(raw) + 1e-4 * len(raw)
+    assert np.all(scan3.label > 0) and np.all(scan3.label < 252)
     # road under the car stays road: the lowest points near the sensor are labelled road
     near_ground = (np.hypot(scan3.xyz[:, 0], scan3.xyz[:, 1]) < 10) & (scan3.xyz[:, 2] < -1.5)
     road_like = np.isin(scan3.label[near_ground], [KITTI_ID[n] for n in

@@ -416,11 +416,15 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     moved = [0] * len(inputs.scans)
     if inputs.cloud_labels == "geometric":
         moved = mark_moved_vehicles(inputs.scans, inputs.poses)
-    map_cloud = place_scans_with_poses(inputs.scans, inputs.poses, inputs.stamps,
-                                       options.d_max, options.voxel)
-    removed_ids = list(MOVING_KITTI) + (list(VEHICLE_KITTI) if options.remove_vehicles else [])
-    removed = np.isin(map_cloud.label, np.array(removed_ids, np.uint16))
-    map_cloud = map_cloud.select(~removed)
+    # moving objects (and with remove_vehicles every vehicle) leave the scans before they are
+    # placed: they win no voxel, and a map built again from scans/ is this map
+    removed_ids = np.array(list(MOVING_KITTI) + (list(VEHICLE_KITTI) if options.remove_vehicles
+                                                 else []), np.uint16)
+    gone = [np.isin(c.label, removed_ids) for c in inputs.scans]
+    scans = [c.select(~g) for c, g in zip(inputs.scans, gone)]
+    removed_points = int(sum(g.sum() for g in gone))
+    map_cloud = place_scans_with_poses(scans, inputs.poses, inputs.stamps, options.d_max,
+                                       options.voxel)
     if len(map_cloud) == 0:
         raise ValueError("the map is empty (no labelled point within d_max)")
 
@@ -437,7 +441,7 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     scan_dir = out / "scans"
     scan_dir.mkdir(exist_ok=True)
     names = inputs.scan_files or [f"{i:06d}.ply" for i in range(len(inputs.scans))]
-    for name, cloud in zip(names, inputs.scans):
+    for name, cloud in zip(names, scans):
         ply.write_ply(scan_dir / name, cloud)
     write_scan_poses(scan_dir / "poses.yaml", names, np.array(inputs.stamps),
                      np.array(inputs.poses), extra={"sources": list(inputs.scan_names)})
@@ -451,7 +455,7 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     report = RealSceneReport(
         out, len(map_cloud), [len(c) for c in inputs.scans],
         label_shares(map_cloud.label, SEMANTIC_KITTI),
-        label_shares(labels, CITYSCAPES, skip=(INVALID,)), engine, moved, int(removed.sum()),
+        label_shares(labels, CITYSCAPES, skip=(INVALID,)), engine, moved, removed_points,
         labels_source, time.perf_counter() - start)
     (out / "scene.yaml").write_text(yaml.safe_dump({
         "kind": options.kind,
