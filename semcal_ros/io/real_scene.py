@@ -423,8 +423,8 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     gone = [np.isin(c.label, removed_ids) for c in inputs.scans]
     scans = [c.select(~g) for c, g in zip(inputs.scans, gone)]
     removed_points = int(sum(g.sum() for g in gone))
-    map_cloud = place_scans_with_poses(scans, inputs.poses, inputs.stamps, options.d_max,
-                                       options.voxel)
+    from semcal_ros.mapping.placement import placed_map  # de-skew + ICP around the anchor scan
+    map_cloud = placed_map(scans, inputs.poses, inputs.stamps, options.d_max, options.voxel)
     if len(map_cloud) == 0:
         raise ValueError("the map is empty (no labelled point within d_max)")
 
