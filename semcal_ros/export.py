@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from semcal_ros.io.files import load_yaml
 from semcal_ros.pose import BODY_FROM_OPTICAL, Pose
 
 #: The output forms of ``semcal export-pose --format``.
@@ -92,15 +93,7 @@ def framed_pose_from_dict(data: Any, path: str = "pose") -> FramedPose:
 
 def read_framed_pose(path: str | Path) -> FramedPose:
     """A pose YAML file; FileNotFoundError / ValueError in one line."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"pose file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "invalid"
-        raise ValueError(f"{path}: invalid YAML ({first})") from None
-    return framed_pose_from_dict(data, str(path))
+    return framed_pose_from_dict(load_yaml(path, "pose"), str(path))
 
 
 # --- the forms ---------------------------------------------------------------------------------

@@ -13,21 +13,24 @@ from semcal_ros.camera import CameraModel
 from semcal_ros.pose import Pose
 
 
-def _load_yaml(path: str | Path, what: str) -> dict:
+def load_yaml(path: str | Path, what: str) -> dict:
+    """A YAML mapping from ``path``; FileNotFoundError / ValueError in one line (the parser's
+    message is several lines: its first says what is wrong)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{what} file not found: {path}")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML ({exc})") from None
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "unreadable"
+        raise ValueError(f"{path}: invalid YAML ({first})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a YAML mapping")
     return data
 
 
 def read_camera_info(path: str | Path) -> CameraModel:
-    data = _load_yaml(path, "camera_info")
+    data = load_yaml(path, "camera_info")
     try:
         return CameraModel.from_camera_info_dict(data)
     except ValueError as exc:
@@ -59,7 +62,7 @@ def pose_from_dict(data: dict) -> Pose:
 
 
 def read_pose(path: str | Path) -> Pose:
-    data = _load_yaml(path, "pose")
+    data = load_yaml(path, "pose")
     try:
         return pose_from_dict(data)
     except ValueError as exc:

@@ -22,7 +22,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from semcal_ros.io.files import _load_yaml
+from semcal_ros.io.files import load_yaml
 from semcal_ros.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, SEMANTIC_KITTI
 
 #: Output kinds a model may have: per-class scores (N x C x H x W) or an argmax already taken
@@ -138,7 +138,7 @@ def load_model_config(path: str | Path, kind: type | None = None) -> ModelConfig
 
     ``kind`` (ImageModelConfig or RangeModelConfig) refuses a config of the other kind.
     """
-    data = _load_yaml(path, "model config")
+    data = load_yaml(path, "model config")
     try:
         config = model_config_from_dict(data)
     except (ValueError, TypeError) as exc:
