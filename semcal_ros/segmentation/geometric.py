@@ -69,8 +69,8 @@ class GeometricParams:
     terrain_roughness: float = 0.035  # ground cells whose height spread exceeds it are terrain
     # --- objects ---
     voxel: float = 0.2  # object voxel size: features and clusters are computed per voxel
-    feature_radius: float = 0.5  # neighbourhood of a voxel's covariance features
-    feature_max_nn: int = 30  # at most this many neighbours (speed)
+    feature_radius: float = 1.5  # farthest neighbour of a voxel's covariance (sparse far walls need ~1.5)
+    feature_max_nn: int = 16  # nearest neighbours used (dense areas stay local; speed)
     cluster_eps: float = 0.5  # DBSCAN radius: voxels nearer than this belong to one object
     cluster_min_voxels: int = 3  # DBSCAN core size; smaller groups are noise (unlabeled)
     min_object_points: int = 8  # clusters with fewer points stay unlabeled
