@@ -126,8 +126,8 @@ def joint_fit(problem: Problem, truth: Pose, stage: int, n: int, half_cm: float,
     return vertex * scale, w / half_cm ** 2, v
 
 
-def principal_shift(problem: Problem, camera: CameraModel, truth: Pose, stage: int,
-                    steps: np.ndarray) -> dict[str, np.ndarray]:
+def principal_shift(problem: Problem, target: np.ndarray, camera: CameraModel, truth: Pose,
+                    stage: int, steps: np.ndarray) -> dict[str, np.ndarray]:
     """Loss at the truth with the renderer's principal point shifted by ``steps`` px (u, v)."""
     out = {}
     for j, name in enumerate(("cx", "cy")):
@@ -136,15 +136,11 @@ def principal_shift(problem: Problem, camera: CameraModel, truth: Pose, stage: i
             k = camera.k.copy()
             k[j, 2] += s
             cam = replace(camera, k=k)
-            p = Problem(None, problem_target_raw(problem), cam, truth.translation,
+            p = Problem(None, target, cam, truth.translation,
                         problem.params, prepared=problem.pmap)
             losses.append(p.loss(truth, stage))
         out[name] = np.asarray(losses)
     return out
-
-
-def problem_target_raw(problem: Problem) -> np.ndarray:
-    return problem._raw_target  # set in main: the label image before alignment
 
 
 def main() -> None:
@@ -187,7 +183,6 @@ def main() -> None:
                 shared[key] = Problem(c, labels, camera, truth.translation, params).pmap
             problem = Problem(None, target, camera, truth.translation, params,
                               prepared=shared[key])
-            problem._raw_target = target
             for stage in (stages if name not in args.full_only.split(",") else [-1]):
                 at = problem.loss(truth, stage)
                 cells = []
@@ -208,7 +203,7 @@ def main() -> None:
                           f"{np.round(weak, 2).tolist()}", flush=True)
                 if args.principal:
                     steps = np.linspace(-1.0, 1.0, 9)
-                    sh = principal_shift(problem, camera, truth, stage, steps)
+                    sh = principal_shift(problem, target, camera, truth, stage, steps)
                     for k, ys in sh.items():
                         print(f"    principal {k} shift px {steps.round(2).tolist()}: "
                               f"argmin {steps[np.argmin(ys)]:+.2f} px, losses "
