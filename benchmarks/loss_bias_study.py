@@ -201,6 +201,15 @@ def main() -> None:
                           f"deg {np.round(vertex[3:], 3).tolist()}; eigenvalues (per cm^2) "
                           f"{np.array2string(w, precision=1)}; weakest direction "
                           f"{np.round(weak, 2).tolist()}", flush=True)
+                    # the loss along that direction (t in units of the fit's box)
+                    ts = np.linspace(-1.5, 1.5, 13)
+                    scale = np.array([args.joint_cm] * 3 + [args.joint_deg] * 2)
+                    along = [problem.loss(pose_at(truth, t * weak * scale), stage) for t in ts]
+                    best = ts[int(np.argmin(along))] * weak * scale
+                    print(f"    along it: lowest at x y z cm {np.round(best[:3], 1).tolist()} "
+                          f"pitch yaw deg {np.round(best[3:], 3).tolist()}, loss "
+                          f"{min(along):.6f} vs {along[6]:.6f} at the truth; losses "
+                          f"{np.round(along, 6).tolist()}", flush=True)
                 if args.principal:
                     steps = np.linspace(-1.0, 1.0, 9)
                     sh = principal_shift(problem, target, camera, truth, stage, steps)
