@@ -547,7 +547,10 @@ def test_placed_map_uses_the_time_field_and_keeps_labels(world):
     sweeps, poses = _moving_sweeps(world, start, twist, 3)
     clouds = [LabelledCloud(x, world.label[i], {"t": t.astype(np.float64)}) for x, t, i in sweeps]
     relative = list(np.linalg.inv(poses[0]) @ poses)
-    cloud = placed_map(clouds, relative, [0.0, 0.1, 0.2], 60.0, 0.05)
+    placed = placed_map(clouds, relative, [0.0, 0.1, 0.2], 60.0, 0.05)
+    cloud = placed.map
+    assert len(placed.scans) == len(placed.poses) == 3
+    np.testing.assert_allclose(placed.poses[0], np.eye(4), atol=1e-9)  # the anchor stays put
     on_world = filters.apply_rigid(cloud.xyz, poses[0])
     dist, idx = cKDTree(world.xyz).query(on_world)
     assert np.median(dist) < 0.03

@@ -117,9 +117,11 @@ def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path, exported):
         live = conv.image_to_labels(live_labels[-1])
         assert live.shape == offline.shape == (376, 1241)
         assert (live == offline).mean() > 0.999
-        # the map the calibrator holds is the map kitti-scene built from the same scans
+        # the map the calibrator holds is the map kitti-scene built from the same scans (scans/
+        # holds them as placed; stored as float32 and re-transformed, a few points change voxel)
         held = int(watcher.get("calibrator")["map_points"])
-        assert held == len(ply.read_ply(scene / "map.ply"))
+        built = len(ply.read_ply(scene / "map.ply"))
+        assert abs(held - built) <= max(5, 1e-3 * built), (held, built)
 
         initial = files.read_pose(scene / "initial.yaml")
         truth = files.read_pose(scene / "ground_truth.yaml")

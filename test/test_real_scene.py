@@ -109,10 +109,11 @@ def test_kitti_odometry_two_scans_semantickitti_parked_cars_stay(tmp_path, capsy
     rows = np.flatnonzero((labels != INVALID).any(axis=1))
     assert rows.min() > params.loss.crop_top * 376  # the crop leaves every labelled row in
     assert (labels == CITYSCAPES_ID["car"]).mean() > 0.03  # the truth-label image shows cars
-    # the second scan sits about 0.86 m ahead (poses.txt through Tr), in the first scan's frame
+    # the second scan sits ahead in the first scan's frame: poses.txt says 0.86 m, the scans
+    # registered to each other (de-skew + ICP, the poses scans/ holds) 0.68 m (docs/mapping.md)
     poses = yaml.safe_load((out / "scans" / "poses.yaml").read_text())["scans"]
     np.testing.assert_allclose(poses[0]["translation"], 0, atol=1e-9)
-    assert 0.7 < poses[1]["translation"][0] < 1.0
+    assert 0.6 < poses[1]["translation"][0] < 0.8, poses[1]["translation"]
     assert "map label shares: vegetation" in printed and "image label shares" in printed
 
     removed = tmp_path / "no_vehicles"

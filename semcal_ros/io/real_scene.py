@@ -2,8 +2,9 @@
 
 ``semcal real-scene`` and ``semcal kitti-scene`` both end in :func:`write_real_scene`, which writes
 the scene folder contract of docs/CONTRACTS.md (kind ``real``). The map frame is the first scan's
-lidar frame (z up for a level lidar); further scans are placed there with their given poses
-(:func:`place_scans_with_poses`, the one call a de-skewing map builder replaces). Point labels come
+lidar frame (z up for a level lidar); further scans are placed there from their given poses by
+de-skew and ICP around the scan at the identity (:func:`semcal_ros.mapping.placement.placed_map`;
+``scans/`` holds them as placed, de-skewed, with the refined poses). Point labels come
 with the scans (SemanticKITTI ``.label`` files, a label file given per scan) or from the geometric
 labeller; the label image from a segmenter, a given PNG or the first scan's point labels projected
 through the true extrinsic (the ideal-label reference).
@@ -256,24 +257,6 @@ def mark_moved_vehicles(clouds: list[LabelledCloud], poses: list[np.ndarray],
     return moved_counts
 
 
-def place_scans_with_poses(clouds: list[LabelledCloud], poses: list[np.ndarray],
-                           stamps: list[float], d_max: float, voxel: float) -> LabelledCloud:
-    """The scans in the map frame by their given poses (no ICP, no de-skew), limited to
-    ``d_max`` and voxel-downsampled with the majority label per voxel.
-
-    The one placement step of a real scene: a map builder that de-skews scans or refines their
-    poses replaces this call.
-    """
-    from semcal_ros.mapping import MapBuildParams, ScanInput, build_map
-
-    params = MapBuildParams(d_max=d_max, voxel=voxel, icp=False, remove_dynamic=False)
-    result = build_map([ScanInput(c, p, s, f"{i:06d}")
-                        for i, (c, p, s) in enumerate(zip(clouds, poses, stamps))], params)
-    if result.skipped:
-        raise ValueError(f"scans skipped by the map builder: {result.skipped}")
-    return result.map
-
-
 def projected_truth_labels(cloud: LabelledCloud, t_cam_lidar: np.ndarray, camera: CameraModel,
                            fill_px: int = 6) -> np.ndarray:
     """A trainId image from labelled lidar points seen from the camera (an ideal-label target).
@@ -424,7 +407,8 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     scans = [c.select(~g) for c, g in zip(inputs.scans, gone)]
     removed_points = int(sum(g.sum() for g in gone))
     from semcal_ros.mapping.placement import placed_map  # de-skew + ICP around the anchor scan
-    map_cloud = placed_map(scans, inputs.poses, inputs.stamps, options.d_max, options.voxel)
+    placed = placed_map(scans, inputs.poses, inputs.stamps, options.d_max, options.voxel)
+    map_cloud = placed.map
     if len(map_cloud) == 0:
         raise ValueError("the map is empty (no labelled point within d_max)")
 
@@ -441,10 +425,10 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     scan_dir = out / "scans"
     scan_dir.mkdir(exist_ok=True)
     names = inputs.scan_files or [f"{i:06d}.ply" for i in range(len(inputs.scans))]
-    for name, cloud in zip(names, scans):
-        ply.write_ply(scan_dir / name, cloud)
+    for name, cloud in zip(names, placed.scans):  # de-skewed, at their refined poses:
+        ply.write_ply(scan_dir / name, cloud)      # a map built again from scans/ is map.ply
     write_scan_poses(scan_dir / "poses.yaml", names, np.array(inputs.stamps),
-                     np.array(inputs.poses), extra={"sources": list(inputs.scan_names)})
+                     np.array(placed.poses), extra={"sources": list(inputs.scan_names)})
     files.write_label_image(out / "labels.png", labels)
     files.write_rgb_image(out / "image.png", rgb)
     files.write_camera_info(out / "camera_info.yaml", camera, name=options.camera_name)

@@ -140,18 +140,29 @@ def place_scans(scans: list[np.ndarray], poses: list[np.ndarray], anchor: int,
     return Placement(list(relative), xyz, anchor, pairs, use_deskew)
 
 
+@dataclass
+class PlacedMap:
+    """A vehicle frame's map and the scans it was built from, as placed: ``scans[i]`` de-skewed in
+    its own lidar frame (time fields dropped, other fields kept), ``poses[i]`` its refined
+    lidar -> map transform. Building a map again from
+    these scans and poses (no ICP, no de-skew) gives ``map`` (what a scene's ``scans/`` holds)."""
+
+    map: LabelledCloud
+    scans: list[LabelledCloud]
+    poses: list[np.ndarray]
+
+
 def placed_map(clouds: list[LabelledCloud], poses: list[np.ndarray], stamps: list[float],
                d_max: float, voxel: float, anchor: int | None = None,
-               params: PlacementParams | None = None) -> LabelledCloud:
+               params: PlacementParams | None = None) -> PlacedMap:
     """The labelled map of a vehicle frame's scans, in the poses' map frame: placed by
     :func:`place_scans` around the anchor scan (held at its given pose; default: the scan whose
     pose is closest to the identity, i.e. the scan whose lidar frame is the map frame), with
     per-point times from a ``t``/``time``/``timestamp`` field, else the azimuth; limited to
     ``d_max``, voxel-downsampled with the majority label per voxel; dynamic classes are left to
-    the caller. The drop-in for placing scans with their given poses only (same arguments as the
-    real-scene writer's ``place_scans_with_poses``)."""
+    the caller."""
     from semcal_ros.mapping import MapBuildParams, ScanInput, build_map
-    from semcal_ros.mapping.deskew import point_times
+    from semcal_ros.mapping.deskew import TIME_FIELDS, point_times
 
     params = params or PlacementParams()
     poses_arr = np.asarray(poses, float)
@@ -160,14 +171,17 @@ def placed_map(clouds: list[LabelledCloud], poses: list[np.ndarray], stamps: lis
     times = [point_times(c.xyz, c.extra, params.deskew) for c in clouds]
     placed = place_scans([c.xyz for c in clouds], list(poses_arr), anchor, times=times,
                          params=params, stamps=stamps if len(clouds) > 1 else None)
-    inputs = [ScanInput(LabelledCloud(xyz, c.label), poses_arr[anchor] @ t, s, f"{i:06d}")
-              for i, (c, xyz, t, s) in enumerate(zip(clouds, placed.xyz, placed.transforms,
-                                                     stamps))]
+    # de-skewed: their time fields go (a builder would de-skew them again), the rest stays
+    scans = [LabelledCloud(xyz, c.label, {k: v for k, v in c.extra.items() if k not in TIME_FIELDS})
+             for c, xyz in zip(clouds, placed.xyz)]
+    in_map = [poses_arr[anchor] @ t for t in placed.transforms]
+    inputs = [ScanInput(c, pose, s, f"{i:06d}")
+              for i, (c, pose, s) in enumerate(zip(scans, in_map, stamps))]
     result = build_map(inputs, MapBuildParams(d_max=d_max, voxel=voxel, icp=False,
                                               remove_dynamic=False))
     if result.skipped:
         raise ValueError(f"scans skipped by the map builder: {result.skipped}")
-    return result.map
+    return PlacedMap(result.map, scans, in_map)
 
 
-__all__ = ["Placement", "PlacementParams", "place_scans", "placed_map"]
+__all__ = ["PlacedMap", "Placement", "PlacementParams", "place_scans", "placed_map"]
