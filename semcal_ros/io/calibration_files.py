@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from semcal_ros.camera import CameraModel
+from semcal_ros.io.kitti import read_key_values
 
 #: How far a stored rotation may be from orthonormal (max |R^T R - I|) before it is refused.
 ORTHONORMAL_TOLERANCE = 1e-3
@@ -111,22 +112,6 @@ def write_extrinsic_yaml(path: str | Path, t_cam_lidar: np.ndarray) -> None:
                           + yaml.safe_dump({"T_cam_lidar": rows}, default_flow_style=None))
 
 
-def _key_values(path: Path) -> dict[str, np.ndarray]:
-    """``KEY: numbers`` lines (KITTI and PJLab text calibrations)."""
-    out: dict[str, np.ndarray] = {}
-    for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
-        if not line.strip():
-            continue
-        key, sep, values = line.partition(":")
-        if not sep:
-            raise ValueError(f"{path}:{number}: expected 'KEY: numbers'")
-        try:
-            out[key.strip()] = np.array(values.split(), dtype=float)
-        except ValueError:
-            raise ValueError(f"{path}:{number}: '{key.strip()}' has non-numeric values") from None
-    return out
-
-
 def _rectified(p: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
     """K and the camera's offset (4x4) from a rectified KITTI projection ``K [I | t]``."""
     p = p.reshape(3, 4)
@@ -141,7 +126,7 @@ def _rectified(p: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray]:
 def read_text_calib(path: str | Path, projection: str = "P2") -> CalibrationSource:
     """A KITTI odometry, KITTI object or PJLab ``calib.txt`` (detected from its keys)."""
     path = Path(path)
-    entries = _key_values(path)
+    entries = read_key_values(path)
 
     def need(key: str, size: int) -> np.ndarray:
         if key not in entries:

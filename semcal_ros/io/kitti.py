@@ -78,23 +78,30 @@ def read_poses(path: str | Path) -> np.ndarray:
     return out
 
 
-def read_calib(path: str | Path) -> dict[str, np.ndarray]:
-    """``calib.txt`` entries: ``P0``..``P3`` as 3x4, ``Tr`` (velodyne -> cam0) as 4x4."""
-    path = _require_file(path, "calibration file")
+def read_key_values(path: str | Path, what: str = "calibration file") -> dict[str, np.ndarray]:
+    """``KEY: numbers`` lines (KITTI calib files, the PJLab K/D/T text) as flat float arrays."""
+    path = _require_file(path, what)
     out: dict[str, np.ndarray] = {}
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
         if not line.strip():
             continue
         key, sep, values = line.partition(":")
         if not sep:
             raise ValueError(f"{path}:{number}: expected 'KEY: numbers'")
         try:
-            nums = np.array(values.split(), dtype=float)
+            out[key.strip()] = np.array(values.split(), dtype=float)
         except ValueError:
-            raise ValueError(f"{path}:{number}: '{key}' has non-numeric values") from None
+            raise ValueError(f"{path}:{number}: '{key.strip()}' has non-numeric values") from None
+    return out
+
+
+def read_calib(path: str | Path) -> dict[str, np.ndarray]:
+    """``calib.txt`` entries: ``P0``..``P3`` as 3x4, ``Tr`` (velodyne -> cam0) as 4x4."""
+    out: dict[str, np.ndarray] = {}
+    for key, nums in read_key_values(path).items():
         if nums.size != 12:
-            raise ValueError(f"{path}:{number}: '{key}' has {nums.size} numbers, expected 12")
-        out[key.strip()] = nums.reshape(3, 4)
+            raise ValueError(f"{path}: '{key}' has {nums.size} numbers, expected 12")
+        out[key] = nums.reshape(3, 4)
     if "Tr" not in out:
         raise ValueError(f"{path}: no 'Tr' (velodyne -> cam0) entry")
     tr = np.eye(4)
