@@ -30,6 +30,7 @@ import numpy as np
 import yaml
 
 from semcal_ros.camera import CameraModel
+from semcal_ros.io.files import load_yaml
 from semcal_ros.io.kitti import read_key_values
 
 #: How far a stored rotation may be from orthonormal (max |R^T R - I|) before it is refused.
@@ -89,14 +90,8 @@ def rigid(matrix: np.ndarray, where: str) -> np.ndarray:
 
 def read_extrinsic_yaml(path: str | Path) -> np.ndarray:
     """``T_cam_lidar`` (4x4 nested list, or 16/12 numbers row-major) from a YAML file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"extrinsic file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML ({exc})") from None
-    if not isinstance(data, dict) or "T_cam_lidar" not in data:
+    data = load_yaml(path, "extrinsic")
+    if "T_cam_lidar" not in data:
         raise ValueError(f"{path}: expected a mapping with 'T_cam_lidar' (4x4, lidar -> camera)")
     try:
         values = np.asarray(data["T_cam_lidar"], dtype=float)
