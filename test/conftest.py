@@ -82,3 +82,15 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, 
         result = export_model(arch, weights, root / f"{arch}.onnx")
         out[arch] = (result.model_path, result.config_path)
     return out
+
+
+@pytest.fixture
+def graph(tmp_path: Path):
+    """The ROS processes of one test in a domain of their own (test/ros_helpers.py); their logs
+    are printed, and shown by pytest only when the test failed."""
+    from ros_helpers import RosGraph
+
+    g = RosGraph(tmp_path / "logs")
+    yield g
+    g.close()
+    print(g.logs())

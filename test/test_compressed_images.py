@@ -140,15 +140,7 @@ def test_camera_inputs_decode_compressed_and_refuse_jpeg_labels():
 
 
 # --- real nodes over DDS ----------------------------------------------------------------------
-from ros_helpers import REPO, RosGraph, publish_until, spin_until  # noqa: E402
-
-
-@pytest.fixture
-def graph(tmp_path):
-    g = RosGraph(tmp_path)
-    yield g
-    g.close()
-    print(g.logs())  # shown by pytest only when the test failed
+from ros_helpers import REPO, publish_until, spin_until  # noqa: E402
 
 
 @pytest.fixture

@@ -24,7 +24,6 @@ rclpy = pytest.importorskip("rclpy")
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 
-from ros_helpers import RosGraph  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -57,14 +56,6 @@ def write_kitti_bag(scene: Path, bag: Path, camera_seconds: float = 2.0) -> int:
                         .as_quat(), cloud.xyz, cloud.extra["intensity"], cloud.label)
     writer.close(t0 + scans.stamps[-1] + camera_seconds)
     return len(scans)
-
-
-@pytest.fixture
-def graph(tmp_path):
-    g = RosGraph(tmp_path / "logs")
-    yield g
-    g.close()
-    print(g.logs())  # shown by pytest only when the test failed
 
 
 def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path, exported):

@@ -23,14 +23,6 @@ from ros_helpers import REPO, RosGraph, publish_until, spin_until  # noqa: E402
 pytestmark = pytest.mark.ros
 
 
-@pytest.fixture
-def graph(tmp_path):
-    g = RosGraph(tmp_path)
-    yield g
-    g.close()
-    print(g.logs())  # shown by pytest only when the test failed
-
-
 # --- bag replay ------------------------------------------------------------------------------
 def write_test_bag(path: Path, storage: str, scans: int = 30, hz: float = 20.0,
                    points: int = 20000, t0: float = 1700000000.0) -> list[np.ndarray]:
