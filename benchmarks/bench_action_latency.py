@@ -38,7 +38,7 @@ def main() -> int:
     from semcal_ros.io.files import read_pose
     from semcal_ros.ros import qos
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
-    from semcal_ros.ros.launch import NodeGraph
+    from semcal_tools.launch import NodeGraph
     from semcal_ros.ros.scene_messages import camera_messages
 
     entry = {"folder": ".", "frame_id": "camera_optical",

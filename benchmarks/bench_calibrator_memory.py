@@ -50,11 +50,11 @@ def main() -> int:
     from semcal_ros.ros import conversions as conv
     from semcal_ros.ros import qos
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
-    from semcal_ros.ros.launch import NodeGraph
+    from semcal_tools.launch import NodeGraph
 
     scene = args.scene
     if scene is None:
-        from semcal_ros.scenes import SIZES, generate_scene
+        from semcal_tools.scenes import SIZES, generate_scene
 
         scene = Path(tempfile.mkdtemp(prefix="bench-cal-mem-"))
         t = time.perf_counter()

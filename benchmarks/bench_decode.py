@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from semcal_ros.io import images
-from semcal_ros.labels import CITYSCAPES_PALETTE
+from semcal_ros.engine.labels import CITYSCAPES_PALETTE
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "pjlab_lidar_camera" / "ours1" / "calib.jpg"

@@ -30,11 +30,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from semcal_ros.drift import DriftChecker, DriftParams  # noqa: E402
+from semcal_ros.engine.drift import DriftChecker, DriftParams  # noqa: E402
 from semcal_ros.io import files, ply  # noqa: E402
-from semcal_ros.pose import Pose  # noqa: E402
-from semcal_ros.scenes import SIZES, generate_scene  # noqa: E402
-from semcal_ros.scenes.generate import camera_view, scene_world  # noqa: E402
+from semcal_ros.engine.pose import Pose  # noqa: E402
+from semcal_tools.scenes import SIZES, generate_scene  # noqa: E402
+from semcal_tools.scenes.generate import camera_view, scene_world  # noqa: E402
 
 KINDS = ("junction", "roundabout", "arterial", "highway")
 VARIANTS = ("ideal", "noisy_labels")

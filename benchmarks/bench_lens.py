@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from semcal_ros.camera import CameraModel
-from semcal_ros.params import RenderParams
-from semcal_ros.render import fast, prepare_map, reference, view_for
-from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world_of_size
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.params import RenderParams
+from semcal_ros.engine.render import fast, prepare_map, reference, view_for
+from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world_of_size
 
 
 def lenses() -> dict[str, CameraModel]:

@@ -46,8 +46,8 @@ def main() -> int:
     import rclpy
 
     from semcal_ros.ros.client import DiagnosticsWatcher
-    from semcal_ros.ros.launch import NodeGraph
-    from semcal_ros.ros.live_demo import ODOM_TOPIC, SCAN_TOPIC, ensure_scene, scan_count
+    from semcal_tools.launch import NodeGraph
+    from semcal_tools.live_demo import ODOM_TOPIC, SCAN_TOPIC, ensure_scene, scan_count
     from semcal_ros.ros.runtime import config_file
 
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="semcal-bench-mem-"))

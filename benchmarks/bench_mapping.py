@@ -42,7 +42,7 @@ def ensure_scene(folder: Path, scans: int) -> Path:
     print(f"generating {scans} scans into {folder} (once) ...", flush=True)
     start = time.perf_counter()
     code = ("import sys; from pathlib import Path; "
-            "from semcal_ros.scenes.generate import SceneOptions, generate_scene; "
+            "from semcal_tools.scenes.generate import SceneOptions, generate_scene; "
             "generate_scene(Path(sys.argv[1]), 'junction', 0, 'ideal', SceneOptions("
             "scans=int(sys.argv[2]), lines=int(sys.argv[3]), write_bag=False), force=True, "
             "progress=False)")

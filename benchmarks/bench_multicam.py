@@ -8,7 +8,7 @@ Uses a scene of ``semcal scene --cameras N`` (the small size makes a ~2.4 M-poin
 2. a calibrator serving every camera: one goal per camera sent at once (they queue on the one engine
    thread), the same RSS figures, and each result's error against the camera's ground truth;
 3. each camera alone, in this process, as ``semcal calibrate`` does it
-   (:func:`semcal_ros.optimize.calibrate`: the map cropped around the initial pose and prepared for
+   (:func:`semcal_ros.engine.search.calibrate`: the map cropped around the initial pose and prepared for
    that one calibration), with the same engine parameters and seed.
 
     semcal scene --size small --cameras 4 --no-bag --out /tmp/mc4
@@ -38,11 +38,11 @@ def run_node(scene: Path, cams: list[dict], engine: dict, logs: Path) -> dict:
     from sensor_msgs.msg import CameraInfo, Image
 
     from semcal_ros.io.files import read_pose
-    from semcal_ros.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.ros import conversions as conv
     from semcal_ros.ros import qos
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
-    from semcal_ros.ros.launch import NodeGraph
+    from semcal_tools.launch import NodeGraph
 
     names = [c["name"] for c in cams]
     out: dict = {"errors": {}}
@@ -93,12 +93,12 @@ def run_node(scene: Path, cams: list[dict], engine: dict, logs: Path) -> dict:
 def alone(scene: Path, cams: list[dict], engine: dict) -> dict:
     """Each camera calibrated by itself as ``semcal calibrate`` does (map cropped and prepared
     per calibration)."""
-    from semcal_ros.config import apply_flat
+    from semcal_ros.engine.config import apply_flat
     from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
     from semcal_ros.io.ply import read_ply
-    from semcal_ros.optimize import calibrate
-    from semcal_ros.params import CalibrationParams
-    from semcal_ros.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.search import calibrate
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
 
     params = apply_flat(CalibrationParams(), {k[len("engine."):]: v for k, v in engine.items()})
     cloud = read_ply(scene / "map.ply")

@@ -27,7 +27,7 @@ def folder_bytes(path: Path) -> int:
 
 
 def main() -> None:
-    from semcal_ros.scenes import KINDS, SIZES, generate_scene
+    from semcal_tools.scenes import KINDS, SIZES, generate_scene
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3)

@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT / "test"))
 
 from onnx_models import colour_model, range_channel_model  # noqa: E402
 
-from semcal_ros.labels import CITYSCAPES_PALETTE  # noqa: E402
+from semcal_ros.engine.labels import CITYSCAPES_PALETTE  # noqa: E402
 from semcal_ros.segmentation.cloud import CloudSegmenter, check_scan  # noqa: E402
 from semcal_ros.segmentation.image import ImageSegmenter  # noqa: E402
 from semcal_ros.segmentation.model_config import load_model_config  # noqa: E402

@@ -43,7 +43,7 @@ sys.path[:0] = [str(REPO), str(REPO / "test")]
 
 import netns  # noqa: E402
 
-from semcal_ros.ros.launch import DomainLock  # noqa: E402
+from semcal_tools.launch import DomainLock  # noqa: E402
 
 
 def run_mode(mode: str, scene: Path, out: Path, goals: int, refused: int, params: dict,
@@ -109,7 +109,7 @@ def main() -> int:
     netns.remove_stale_namespaces()
     scene = args.scene
     if scene is None:
-        from semcal_ros.scenes import SIZES, generate_scene
+        from semcal_tools.scenes import SIZES, generate_scene
 
         scene = Path(tempfile.mkdtemp(prefix="bench-two-hosts-scene-"))
         generate_scene(scene, "junction", 0, "ideal", SIZES["small"], progress=False)

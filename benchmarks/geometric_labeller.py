@@ -4,7 +4,7 @@ time per scan.
 
     .venv/bin/python benchmarks/geometric_labeller.py [--scene SCENE_DIR] [--repeats 3]
 
-Agreement is counted in the engine's aligned classes (semcal_ros.labels: lane-marking = road,
+Agreement is counted in the engine's aligned classes (semcal_ros.engine.labels: lane-marking = road,
 parking = sidewalk, trunk = vegetation, ...), cars kept; a second table merges road and
 sidewalk (the paper's KITTI set-up). Times: the median of ``--repeats`` calls per scan after a
 warm-up call (numba/Open3D/Patchwork++ set-up is not counted); the load average is printed.
@@ -35,7 +35,7 @@ def main() -> int:
     args = ap.parse_args()
 
     from semcal_ros.io import kitti, ply
-    from semcal_ros.labels import LabelMapping
+    from semcal_ros.engine.labels import LabelMapping
     from semcal_ros.segmentation.geometric import label_scan, point_agreement
 
     preds, refs, times, sizes = [], [], [], []

@@ -7,7 +7,7 @@ vertical-angle correction) and each is measured against the camera:
 
 - the loss (calibrator.yaml's engine settings) at the true pose and along map x (forward), y, z:
   where the minimum sits, without a search;
-- the paper's protocol (`semcal_ros.evaluation.evaluate_scene`: starts +-2.5 m / +-5 deg, the
+- the paper's protocol (`semcal_tools.evaluation.evaluate_scene`: starts +-2.5 m / +-5 deg, the
   engine's full default procedure per start), with --runs starts, keeping --keep.
 
 Run it under the shared lock (it calibrates):
@@ -60,7 +60,7 @@ def variant_map(name: str, out: Path, scene: Path) -> tuple[Path, list[np.ndarra
     """Build the variant's map (scan 0's lidar frame) as ``out``; returns it, the scans'
     transforms into scan 0's frame and the scene folder to calibrate in (a copy with labels.png
     projected from scan 0 as placed, for the "placed labels" variants)."""
-    from semcal_ros.cloud import LabelledCloud
+    from semcal_ros.engine.cloud import LabelledCloud
     from semcal_ros.io import kitti, ply
     from semcal_ros.io.kitti_scene import transfer_labels
     from semcal_ros.mapping import MapBuildParams, ScanInput, build_map
@@ -120,9 +120,9 @@ def loss_profile(scene: Path, map_file: Path, offsets: np.ndarray) -> dict[str, 
     """Loss at the truth and along map x, y, z; the offset of the lowest loss per axis."""
     from semcal_ros.io import files
     from semcal_ros.io.ply import read_ply
-    from semcal_ros.params import CalibrationParams
-    from semcal_ros.pose import Pose
-    from semcal_ros.problem import Problem
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.pose import Pose
+    from semcal_ros.engine.problem import Problem
 
     params = CalibrationParams.from_file(scene / "calibrator.yaml")
     truth = files.read_pose(scene / "ground_truth.yaml")
@@ -152,8 +152,8 @@ def main() -> int:
     if not KITTI.is_dir():
         print(f"KITTI data absent: {KITTI}")
         return 1
-    from semcal_ros.evaluation import ProtocolParams, evaluate_scene
-    from semcal_ros.params import CalibrationParams
+    from semcal_tools.evaluation import ProtocolParams, evaluate_scene
+    from semcal_ros.engine.params import CalibrationParams
 
     names = [v.strip() for v in args.variants.split(",") if v.strip()]
     unknown = [v for v in names if v not in VARIANTS]

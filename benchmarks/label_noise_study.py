@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
 from semcal_ros.io.ply import read_ply
-from semcal_ros.evaluation import ProtocolParams, initial_guesses
-from semcal_ros.params import CalibrationParams
-from semcal_ros.problem import Problem
-from semcal_ros.optimize import solve
-from semcal_ros.pose import translation_error, rotation_error_deg
-from semcal_ros.scenes.labelnoise import add_label_noise, add_network_noise, NOISE_MODELS
+from semcal_tools.evaluation import ProtocolParams, initial_guesses
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.problem import Problem
+from semcal_ros.engine.search import solve
+from semcal_ros.engine.pose import translation_error, rotation_error_deg
+from semcal_tools.scenes.labelnoise import add_label_noise, add_network_noise, NOISE_MODELS
 
 ap = argparse.ArgumentParser()
 ap.add_argument("scene"); ap.add_argument("--noise", default="none")

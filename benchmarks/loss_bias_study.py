@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from semcal_ros.camera import CameraModel
+from semcal_ros.engine.camera import CameraModel
 from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
 from semcal_ros.io.ply import read_ply
-from semcal_ros.labels import INVALID, SKY
+from semcal_ros.engine.labels import INVALID, SKY
 from semcal_ros.mapping.filters import voxel_downsample
-from semcal_ros.params import CalibrationParams
-from semcal_ros.pose import BODY_FROM_OPTICAL, Pose
-from semcal_ros.problem import Problem
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.pose import BODY_FROM_OPTICAL, Pose
+from semcal_ros.engine.problem import Problem
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 #: the authors' code: radius 0.195 NDC units / distance at 480x300 (NDC spans the short side):

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
 from semcal_ros.io.ply import read_ply
-from semcal_ros.params import CalibrationParams
-from semcal_ros.problem import Problem
-from semcal_ros.pose import Pose
-from semcal_ros.quality import assess, QualityParams
-from semcal_ros.scenes.labelnoise import noisy_labels
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.problem import Problem
+from semcal_ros.engine.pose import Pose
+from semcal_ros.engine.quality import assess, QualityParams
+from semcal_tools.scenes.labelnoise import noisy_labels
 
 VARIANTS = {"r05": QualityParams(), "r10": QualityParams(rise=0.10), "r05h": QualityParams(stage=1)}
 recs = [json.loads(l) for f in sys.argv[2:] for l in open(f)]

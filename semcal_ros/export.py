@@ -24,7 +24,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from semcal_ros.io.files import load_yaml
-from semcal_ros.pose import BODY_FROM_OPTICAL, Pose
+from semcal_ros.engine.pose import BODY_FROM_OPTICAL, Pose
 
 #: The output forms of ``semcal export-pose --format``.
 FORMATS = ("urdf", "static-tf", "matrix")

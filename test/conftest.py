@@ -23,7 +23,7 @@ import pytest  # noqa: E402
 
 @pytest.fixture(scope="session")
 def scene_factory(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Path]:
-    from semcal_ros.scenes import SIZES, generate_scene
+    from semcal_tools.scenes import SIZES, generate_scene
 
     cache: dict[tuple, Path] = {}
 
@@ -42,7 +42,7 @@ def scene_factory(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Pat
 @pytest.fixture(scope="session")
 def world():
     """The small synthetic street (12 cm sampling) the engine tests calibrate against."""
-    from semcal_ros.synthetic import street_world
+    from semcal_tools.synthetic import street_world
 
     return street_world(step=0.12)
 
@@ -50,7 +50,7 @@ def world():
 @pytest.fixture(scope="session")
 def target(world):
     """The street rendered as the calibrator renders it at the ground truth (loss 0 there)."""
-    from semcal_ros.synthetic import camera, target_image
+    from semcal_tools.synthetic import camera, target_image
 
     return target_image(camera(), world=world)
 

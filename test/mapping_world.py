@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from semcal_ros.cloud import LabelledCloud
-from semcal_ros.labels import KITTI_ID
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import KITTI_ID
 
 ROAD, BUILDING, POLE, CAR = (KITTI_ID[n] for n in ("road", "building", "pole", "car"))
 LIDAR_HEIGHT = 1.8

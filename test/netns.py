@@ -12,7 +12,7 @@ setting on one machine for ``test/test_two_hosts.py`` and ``benchmarks/bench_two
   same-machine shortcut), bound to the link address, discovery range SUBNET with the two hosts
   as static peers, one ROS_DOMAIN_ID.
 - :class:`HostGraph` / :class:`Hosts`: node processes started inside a namespace
-  (``ip netns exec``) with the log handling of :mod:`semcal_ros.ros.launch`, or on this machine's
+  (``ip netns exec``) with the log handling of :mod:`semcal_tools.launch`, or on this machine's
   own network for the localhost comparison; :func:`start_pipeline` starts vehicle and roadside.
 - ``python test/netns.py client ...``: the roadside unit's action client (a process of its own
   in the rsu namespace): waits until the calibrator holds the vehicle's whole map, sends goals,
@@ -39,8 +39,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run as a script from anywhere
     sys.path.insert(0, str(REPO))
 
-from semcal_ros.ros.launch import BIN, NodeProcess, ros_args, ros_environment  # noqa: E402
-from semcal_ros.ros.live_demo import ODOM_TOPIC, SCAN_TOPIC, scan_count  # noqa: E402
+from semcal_tools.launch import BIN, NodeProcess, ros_args, ros_environment  # noqa: E402
+from semcal_tools.live_demo import ODOM_TOPIC, SCAN_TOPIC, scan_count  # noqa: E402
 
 SUBNET = "10.77.0"
 PREFIX = 24
@@ -281,7 +281,7 @@ class HostGraph:
 class Hosts:
     """Where the vehicle's and the roadside unit's processes run, in one ROS domain: on the two
     sides of ``link``, or (``link`` None) both on this machine with the project's usual local
-    settings (:func:`semcal_ros.ros.launch.ros_environment`: localhost discovery, shared memory)
+    settings (:func:`semcal_tools.launch.ros_environment`: localhost discovery, shared memory)
     for comparison. Role "outside" is this machine's own network with discovery over the subnet,
     the link's addresses as static peers and shared memory on: a node that tries to join."""
 

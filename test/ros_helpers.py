@@ -4,7 +4,7 @@ Each test's :class:`RosGraph` claims a ROS_DOMAIN_ID in 1-101 with a lock file, 
 at the same time (pytest-xdist, or two people's test runs on one machine) never hear each other,
 and DDS traffic stays on the machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST). Node processes
 are the installed console scripts; their output goes to files that the fixtures print when a test
-fails. The machinery is :mod:`semcal_ros.ros.launch`, which ``semcal demo`` uses too.
+fails. The machinery is :mod:`semcal_tools.launch`, which ``semcal demo`` uses too.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from semcal_ros.ros.launch import NodeGraph as RosGraph
-from semcal_ros.ros.launch import NodeProcess as RosProcess
+from semcal_tools.launch import NodeGraph as RosGraph
+from semcal_tools.launch import NodeProcess as RosProcess
 
 REPO = Path(__file__).resolve().parents[1]
 

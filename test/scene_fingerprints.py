@@ -127,7 +127,7 @@ def scene_fingerprints(scene: Path, files: list[str]) -> dict:
 def main() -> None:
     import tempfile
 
-    from semcal_ros.scenes import SIZES, generate_scene
+    from semcal_tools.scenes import SIZES, generate_scene
 
     tiny = dict(scans=6, horizontal_step_deg=1.0, write_bag=False)  # test_scenes.TINY
     pinned = {}

@@ -3,7 +3,7 @@
 Each case changes one input of a working call; the last test runs the working call itself, so
 the table cannot pass because everything fails. Cases run in-process (``semcal_ros.cli.main``)
 and are refused before any optimisation, so the table costs seconds. The action refuses the same
-things (test_bad_inputs_ros.py): both doors share :mod:`semcal_ros.validation`.
+things (test_bad_inputs_ros.py): both doors share :mod:`semcal_ros.engine.validation`.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import yaml
 
 from semcal_ros.cli import main
 from semcal_ros.io import files, ply
-from semcal_ros.pose import Pose, translation_error
-from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world, target_image
+from semcal_ros.engine.pose import Pose, translation_error
+from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world, target_image
 
 NEAR = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.4, -0.3, 0.2],
                               GROUND_TRUTH.body_rpy_deg() + [0.0, -1.0, 1.0])
@@ -163,16 +163,16 @@ def _nan_map(d: Path) -> Path:
 
 @pytest.mark.parametrize("change,expected", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
 def test_cli_refuses_before_the_work(case, capsys, monkeypatch, change, expected):
-    import semcal_ros.optimize
+    import semcal_ros.engine.search
 
     started: list[bool] = []
-    real_calibrate = semcal_ros.optimize.calibrate
+    real_calibrate = semcal_ros.engine.search.calibrate
 
     def watched(*args, **kwargs):
         started.append(True)
         return real_calibrate(*args, **kwargs)
 
-    monkeypatch.setattr(semcal_ros.optimize, "calibrate", watched)
+    monkeypatch.setattr(semcal_ros.engine.search, "calibrate", watched)
     code = main(argv(case, **change(case)))
     err = capsys.readouterr().err.strip()
     assert code == 1, err
@@ -203,8 +203,8 @@ def test_cli_good_call_after_the_table(case, capsys):
 
 # --- the shared checks themselves (both doors call these) ---------------------------------------
 def test_validation_checks(tmp_path):
-    from semcal_ros import validation as v
-    from semcal_ros.params import CalibrationParams
+    from semcal_ros.engine import validation as v
+    from semcal_ros.engine.params import CalibrationParams
 
     assert v.output_problems(tmp_path / "new" / "deeper" / "r.yaml", "--output") == []
     (tmp_path / "f").write_text("x")

@@ -23,8 +23,8 @@ rclpy = pytest.importorskip("rclpy")
 from geometry_msgs.msg import PoseStamped  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 
-from semcal_ros.cloud import LabelledCloud  # noqa: E402
-from semcal_ros.pose import Pose  # noqa: E402
+from semcal_ros.engine.cloud import LabelledCloud  # noqa: E402
+from semcal_ros.engine.pose import Pose  # noqa: E402
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 

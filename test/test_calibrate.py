@@ -9,12 +9,12 @@ import pytest
 import yaml
 
 from semcal_ros.cli import main
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io import files, ply
-from semcal_ros.optimize import Cancelled, calibrate
-from semcal_ros.params import CalibrationParams, VerificationParams
-from semcal_ros.pose import Pose, rotation_error_deg, translation_error
-from semcal_ros.synthetic import GROUND_TRUTH, PERTURBED_START, camera
+from semcal_ros.engine.search import Cancelled, calibrate
+from semcal_ros.engine.params import CalibrationParams, VerificationParams
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
+from semcal_tools.synthetic import GROUND_TRUTH, PERTURBED_START, camera
 
 INITIAL = PERTURBED_START
 NEAR = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.4, -0.3, 0.2],

@@ -173,7 +173,7 @@ def colour_segmenter(tmp_path: Path) -> tuple[Path, Path]:
 def test_image_segmenter_on_a_compressed_topic(graph, client, tmp_path):
     from sensor_msgs.msg import Image
 
-    from semcal_ros.labels import CITYSCAPES_ID, INVALID
+    from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID
 
     node, executor = client
     model, config = colour_segmenter(tmp_path)
@@ -275,9 +275,9 @@ def test_calibrator_refuses_a_jpeg_label_stream_and_takes_png(graph, client, dem
 def test_compress_camera_images_rewrites_image_topics_only(tmp_path):
     from rosbags.typesys import Stores, get_typestore
 
-    from semcal_ros.camera import CameraModel
+    from semcal_ros.engine.camera import CameraModel
     from semcal_ros.ros.replay import open_bag
-    from semcal_ros.scenes.bag import CameraFrame, SceneBagWriter, compress_camera_images
+    from semcal_tools.scenes.bag import CameraFrame, SceneBagWriter, compress_camera_images
 
     k = np.array([[50.0, 0, 48], [0, 50.0, 32], [0, 0, 1]])
     cam = CameraModel(96, 64, k, np.zeros(5), "camera_optical")
@@ -340,10 +340,10 @@ def test_compressed_scene_bag_replays_to_a_calibration(graph, client, demo_scene
     from sensor_msgs.msg import Image
 
     from semcal_ros.io.files import read_pose
-    from semcal_ros.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
     from semcal_ros.ros.replay import open_bag
-    from semcal_ros.scenes.bag import compress_camera_images
+    from semcal_tools.scenes.bag import compress_camera_images
 
     node, executor = client
     bag = tmp_path / "bag"

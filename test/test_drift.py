@@ -1,4 +1,4 @@
-"""Drift check (semcal_ros.drift) and ``semcal check`` on the small junction: an unchanged camera
+"""Drift check (semcal_ros.engine.drift) and ``semcal check`` on the small junction: an unchanged camera
 passes, a turned one is flagged with its drift, and what cannot be judged says so."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from semcal_ros.drift import DriftChecker, DriftParams
+from semcal_ros.engine.drift import DriftChecker, DriftParams
 from semcal_ros.io import files, ply
-from semcal_ros.pose import Pose
-from semcal_ros.scenes import SIZES
-from semcal_ros.scenes.generate import camera_view
+from semcal_ros.engine.pose import Pose
+from semcal_tools.scenes import SIZES
+from semcal_tools.scenes.generate import camera_view
 
 
 @pytest.fixture(scope="module")

@@ -28,10 +28,10 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
 
     from semcal_interfaces.msg import CalibrationDrift
     from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
-    from semcal_ros.pose import Pose
+    from semcal_ros.engine.pose import Pose
     from semcal_ros.ros.client import DiagnosticsWatcher
-    from semcal_ros.scenes import SIZES
-    from semcal_ros.scenes.generate import camera_view
+    from semcal_tools.scenes import SIZES
+    from semcal_tools.scenes.generate import camera_view
     from geometry_msgs.msg import TransformStamped
 
     truth = read_pose(demo_scene / "ground_truth.yaml")

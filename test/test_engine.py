@@ -5,12 +5,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from semcal_ros.params import (
+from semcal_ros.engine.params import (
     CalibrationParams, LabelParams, ScheduleParams, SearchParams, Stage, VerificationParams,
 )
-from semcal_ros.pose import Pose, rotation_error_deg, translation_error
-from semcal_ros.problem import Problem
-from semcal_ros.synthetic import GROUND_TRUTH, PERTURBED_START, camera
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
+from semcal_ros.engine.problem import Problem
+from semcal_tools.synthetic import GROUND_TRUTH, PERTURBED_START, camera
 
 INITIAL = PERTURBED_START
 
@@ -92,7 +92,7 @@ def test_problem_prepares_the_map_once_around_an_explicit_centre(world, target):
 
 
 def test_label_merge_from_parameters_reaches_both_domains(world, target):
-    from semcal_ros.labels import CITYSCAPES_ID
+    from semcal_ros.engine.labels import CITYSCAPES_ID
 
     p = Problem(world, target, camera(), GROUND_TRUTH.translation,
                 CalibrationParams(labels=LabelParams(merge=("sidewalk:road",))))
@@ -102,7 +102,7 @@ def test_label_merge_from_parameters_reaches_both_domains(world, target):
 
 # --- the search --------------------------------------------------------------------------------
 def test_full_procedure_refines_few_basins_and_recovers_the_pose(problem):
-    from semcal_ros.optimize import solve
+    from semcal_ros.engine.search import solve
 
     params = problem.params
     res = solve(problem, INITIAL, seed=1)
@@ -124,7 +124,7 @@ def test_full_procedure_refines_few_basins_and_recovers_the_pose(problem):
 
 
 def test_basins_merge_starts_that_end_together():
-    from semcal_ros.optimize import _basins
+    from semcal_ros.engine.search import _basins
 
     a = Pose.from_body_rpy_deg([0, 0, 5], [0, 10, 0])
     b = Pose.from_body_rpy_deg([0.1, 0, 5], [0, 10.1, 0])  # 10 cm, 0.1 deg from a
@@ -134,8 +134,8 @@ def test_basins_merge_starts_that_end_together():
 
 
 def test_degenerate_result_is_an_error_not_a_result(world, target):
-    from semcal_ros.loss import LossParams
-    from semcal_ros.optimize import calibrate
+    from semcal_ros.engine.loss import LossParams
+    from semcal_ros.engine.search import calibrate
 
     # every loss counts as the degenerate value: whatever the search finds is no result
     params = CalibrationParams(loss=LossParams(degenerate_loss=1e-12),
@@ -149,7 +149,7 @@ def test_degenerate_result_is_an_error_not_a_result(world, target):
 
 
 def test_yaw_grid_finds_an_unknown_yaw(world, target):
-    from semcal_ros.optimize import Search, _Counter, _yaw_candidates
+    from semcal_ros.engine.search import Search, _Counter, _yaw_candidates
 
     lost = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.5, -0.5, 0.3],
                                   GROUND_TRUTH.body_rpy_deg() + [0.0, 2.0, 97.0])
@@ -163,7 +163,7 @@ def test_yaw_grid_finds_an_unknown_yaw(world, target):
 
 
 def test_free_roll_adds_a_parameter(problem, world, target):
-    from semcal_ros.optimize import Search, _Counter
+    from semcal_ros.engine.search import Search, _Counter
 
     fixed = Search(problem, _Counter(None, None))
     free = Search(Problem(world, target, camera(), INITIAL.translation,
@@ -176,7 +176,7 @@ def test_free_roll_adds_a_parameter(problem, world, target):
 
 
 def test_a_masked_problem_shares_the_map_and_leaves_the_pixels_out(problem, world, target):
-    from semcal_ros.labels import INVALID
+    from semcal_ros.engine.labels import INVALID
 
     off = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.3, 0, 0], GROUND_TRUTH.body_rpy_deg())
     ignore = np.zeros(target.shape, bool)
@@ -193,8 +193,8 @@ def test_a_masked_problem_shares_the_map_and_leaves_the_pixels_out(problem, worl
 def test_the_label_error_refinement_keeps_an_exact_solution(world, target):
     from dataclasses import replace
 
-    from semcal_ros.loss import LossParams
-    from semcal_ros.optimize import solve
+    from semcal_ros.engine.loss import LossParams
+    from semcal_ros.engine.search import solve
 
     params = replace(CalibrationParams(), loss=LossParams(outlier_width_px=9.0),
                      verification=replace(CalibrationParams().verification, starts=1))

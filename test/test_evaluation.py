@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from semcal_ros.evaluation import (
+from semcal_tools.evaluation import (
     ProtocolParams, evaluate_scene, format_table, initial_guesses, summarize,
 )
 from semcal_ros.io.files import pose_from_dict, read_pose
-from semcal_ros.quality import VERDICTS
-from semcal_ros.params import CalibrationParams, ScheduleParams, VerificationParams
-from semcal_ros.pose import Pose, rotation_error_deg, translation_error
+from semcal_ros.engine.quality import VERDICTS
+from semcal_ros.engine.params import CalibrationParams, ScheduleParams, VerificationParams
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 
 #: A short coarse stage and a few full-resolution steps, one start: enough to move a start,
 #: cheap enough for a unit test.
@@ -119,7 +119,7 @@ def test_cli_writes_json_table_and_overlay(demo_scene: Path, tmp_path: Path, cap
 
 
 def test_a_refused_start_counts_as_a_failed_run(demo_scene: Path):
-    from semcal_ros.loss import LossParams
+    from semcal_ros.engine.loss import LossParams
 
     blind = replace(CHEAP, loss=LossParams(min_coverage=1.0))  # no view covers everything
     res = evaluate_scene(demo_scene, "l2", ProtocolParams(runs=2, keep=1, seed=1), blind)

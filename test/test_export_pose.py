@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from semcal_ros.cli import main as semcal_main
 from semcal_ros.export import framed_pose_from_dict, read_framed_pose
-from semcal_ros.pose import Pose
+from semcal_ros.engine.pose import Pose
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 
-from semcal_ros.labels import KITTI_ID, LabelMapping
+from semcal_ros.engine.labels import KITTI_ID, LabelMapping
 from semcal_ros.segmentation.geometric import GeometricParams, label_scan, point_agreement
 
 REPO = Path(__file__).resolve().parents[1]
@@ -111,7 +111,7 @@ def test_bad_parameters_are_refused_by_name():
 
 
 def test_config_file_holds_the_defaults():
-    from semcal_ros.config import apply_flat, load_node_params
+    from semcal_ros.engine.config import apply_flat, load_node_params
 
     flat = load_node_params(REPO / "config" / "cloud_segmenter.yaml", "cloud_segmenter")
     geometric = {k.removeprefix("geometric."): v for k, v in flat.items()
@@ -144,7 +144,7 @@ def test_cli_method_geometric_writes_a_labelled_ply(tmp_path):
 
 
 def test_cli_bad_input_is_one_line(tmp_path):
-    from semcal_ros.cloud import LabelledCloud
+    from semcal_ros.engine.cloud import LabelledCloud
     from semcal_ros.io.ply import write_ply
 
     nan_scan = tmp_path / "nan.ply"

@@ -8,7 +8,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from semcal_ros.io import kitti, scene_scans
-from semcal_ros.labels import SEMANTIC_KITTI
+from semcal_ros.engine.labels import SEMANTIC_KITTI
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_odometry_00"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"real KITTI data absent ({DATA})")

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io import files, ply
-from semcal_ros.labels import CITYSCAPES_ID, INVALID, KITTI_ID, SKY, LabelMapping
+from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID, KITTI_ID, SKY, LabelMapping
 
 
 def test_default_alignment_and_dynamic_removal():

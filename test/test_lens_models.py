@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from semcal_ros.camera import CameraModel
-from semcal_ros.pose import rotation_error_deg, translation_error
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.pose import rotation_error_deg, translation_error
 
 K = np.array([[420.0, 0.0, 481.3], [0.0, 415.0, 297.8], [0.0, 0.0, 1.0]])
 
@@ -172,9 +172,9 @@ def test_fisheye_scene_calibrates_from_a_near_start(scene_factory):
     lens' ray cast, and a start 0.4 m / 0.8 deg off comes back within 8 cm / 0.25 deg."""
     from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
     from semcal_ros.io.ply import read_ply
-    from semcal_ros.optimize import calibrate
-    from semcal_ros.params import CalibrationParams, ScheduleParams, VerificationParams
-    from semcal_ros.pose import Pose
+    from semcal_ros.engine.search import calibrate
+    from semcal_ros.engine.params import CalibrationParams, ScheduleParams, VerificationParams
+    from semcal_ros.engine.pose import Pose
 
     scene = scene_factory("junction", 0, "ideal", lens="fisheye", write_bag=False,
                           write_scans=False)

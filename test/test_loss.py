@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from semcal_ros.labels import CITYSCAPES_ID, INVALID, SKY, palette_array
-from semcal_ros.loss import LabelLoss, LossParams, loss_reference, pair_table
+from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID, SKY, palette_array
+from semcal_ros.engine.loss import LabelLoss, LossParams, loss_reference, pair_table
 
 ROAD, BUILDING, VEG = CITYSCAPES_ID["road"], CITYSCAPES_ID["building"], CITYSCAPES_ID["vegetation"]
 #: The paper's loss: every mismatch costs its full colour distance (the default adds a boundary band).
@@ -137,7 +137,7 @@ def test_boundary_band_discounts_mismatches_near_the_class_and_matches_the_refer
 
 
 def test_label_outliers_keep_wide_disagreement_and_drop_thin_bands():
-    from semcal_ros.loss import label_outliers
+    from semcal_ros.engine.loss import label_outliers
 
     target = np.full((60, 80), ROAD, np.uint8)
     target[:30] = BUILDING

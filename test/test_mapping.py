@@ -9,10 +9,10 @@ import pytest
 from mapping_world import BUILDING, CAR, ROAD, drive, make_world, scan_from
 from scipy.spatial.transform import Rotation
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io import kitti, scene_scans
 from semcal_ros.io.ply import read_ply
-from semcal_ros.labels import LabelMapping
+from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.mapping import (
     MapBuildParams, ScanInput, ScanRejected, StreamingMapBuilder, build_map)
 from semcal_ros.mapping import evaluation, filters

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from semcal_ros.camera import CameraModel
-from semcal_ros.pose import Pose, rotation_error_deg, translation_error
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 
 
 def camera(d=(0, 0, 0, 0, 0)) -> CameraModel:

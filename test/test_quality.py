@@ -9,17 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
 from semcal_ros.io.ply import read_ply
-from semcal_ros.labels import CITYSCAPES_ID, INVALID, KITTI_ID
-from semcal_ros.optimize import calibrate
-from semcal_ros.params import CalibrationParams, ScheduleParams, VerificationParams
-from semcal_ros.pose import Pose
-from semcal_ros.problem import Problem
-from semcal_ros.quality import QualityParams, QualityReport, assess, label_agreement
-from semcal_ros.scenes.labelnoise import NOISE_MODELS, add_network_noise
-from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world, target_image
+from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID, KITTI_ID
+from semcal_ros.engine.search import calibrate
+from semcal_ros.engine.params import CalibrationParams, ScheduleParams, VerificationParams
+from semcal_ros.engine.pose import Pose
+from semcal_ros.engine.problem import Problem
+from semcal_ros.engine.quality import QualityParams, QualityReport, assess, label_agreement
+from semcal_tools.scenes.labelnoise import NOISE_MODELS, add_network_noise
+from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world, target_image
 
 ROAD, BUILDING = CITYSCAPES_ID["road"], CITYSCAPES_ID["building"]
 TINY = dict(scans=6, horizontal_step_deg=1.0, write_bag=False)
@@ -102,7 +102,7 @@ def test_failed_when_the_pose_is_20_m_off(scene_factory):
 
 def test_runs_that_disagree_fail_the_result():
     """A refined run in another basin with a loss as low as the result's: the data cannot decide."""
-    from semcal_ros.optimize import RunResult
+    from semcal_ros.engine.search import RunResult
 
     world = street_world(step=0.12)
     cam = camera()
@@ -143,7 +143,7 @@ def test_network_noise_is_structured_and_seeded(model):
 
 
 def test_named_noise_models_and_a_clear_error_for_unknown_ones():
-    from semcal_ros.scenes.labelnoise import noisy_labels
+    from semcal_tools.scenes.labelnoise import noisy_labels
 
     labels = target_image(camera(), world=street_world(step=0.12))
     assert (noisy_labels(labels, "legacy", 2) != labels).any()

@@ -16,8 +16,8 @@ import yaml
 from semcal_ros.cli import main
 from semcal_ros.io import files, kitti, ply
 from semcal_ros.io.kitti_scene import parse_scans
-from semcal_ros.labels import INVALID, KITTI_ID
-from semcal_ros.params import CalibrationParams
+from semcal_ros.engine.labels import INVALID, KITTI_ID
+from semcal_ros.engine.params import CalibrationParams
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

@@ -41,7 +41,7 @@ def write_kitti_bag(scene: Path, bag: Path, camera_seconds: float = 2.0) -> int:
 
     from semcal_ros.io import files
     from semcal_ros.io.scene_scans import open_scene_scans
-    from semcal_ros.scenes.bag import CameraFrame, SceneBagWriter
+    from semcal_tools.scenes.bag import CameraFrame, SceneBagWriter
 
     scans = open_scene_scans(scene)
     t0 = 1700000000.0
@@ -63,7 +63,7 @@ def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path, exported):
 
     from semcal_ros.cli import main
     from semcal_ros.io import files, ply
-    from semcal_ros.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
 
     t_begin = time.monotonic()

@@ -17,13 +17,13 @@ import pytest
 import yaml
 
 from semcal_ros.cli import main
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io import files, kitti, ply
 from semcal_ros.io.calibration_files import write_extrinsic_yaml
 from semcal_ros.io.real_scene import mark_moved_vehicles, read_lidar_scan
-from semcal_ros.labels import (CITYSCAPES_ID, INVALID, KITTI_ID, MOVING_KITTI, VEHICLE_KITTI,
+from semcal_ros.engine.labels import (CITYSCAPES_ID, INVALID, KITTI_ID, MOVING_KITTI, VEHICLE_KITTI,
                                LabelMapping)
-from semcal_ros.params import CalibrationParams
+from semcal_ros.engine.params import CalibrationParams
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -282,7 +282,7 @@ def test_bad_inputs_are_one_line(tmp_path, capsys):
     scan = tmp_path / "scan.ply"
     xyz = np.random.default_rng(0).uniform(-20, 20, (500, 3))
     ply.write_ply(scan, LabelledCloud(xyz, np.full(500, KITTI_ID["building"], np.uint16)))
-    from semcal_ros.camera import CameraModel
+    from semcal_ros.engine.camera import CameraModel
 
     files.write_camera_info(tmp_path / "cam.yaml", CameraModel.from_fov(200, 100, 90.0))
     files.write_camera_info(tmp_path / "big.yaml", CameraModel.from_fov(400, 200, 90.0))
@@ -340,7 +340,7 @@ def test_two_scans_need_poses(tmp_path, capsys):
     files.write_rgb_image(image, np.zeros((100, 200, 3), np.uint8))
     scan = tmp_path / "a.ply"
     ply.write_ply(scan, LabelledCloud(np.ones((10, 3)), np.ones(10, np.uint16)))
-    from semcal_ros.camera import CameraModel
+    from semcal_ros.engine.camera import CameraModel
 
     files.write_camera_info(tmp_path / "cam.yaml", CameraModel.from_fov(200, 100, 90.0))
     write_extrinsic_yaml(tmp_path / "T.yaml", np.eye(4))

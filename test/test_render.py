@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from semcal_ros.camera import CameraModel, equidistant_radius
-from semcal_ros.cloud import LabelledCloud
-from semcal_ros.labels import CITYSCAPES_ID, INVALID, KITTI_ID
-from semcal_ros.pose import Pose
-from semcal_ros.render import fast, make_view, prepare_map, reference
-from semcal_ros.synthetic import GROUND_TRUTH, camera, street_world
+from semcal_ros.engine.camera import CameraModel, equidistant_radius
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID, KITTI_ID
+from semcal_ros.engine.pose import Pose
+from semcal_ros.engine.render import fast, make_view, prepare_map, reference
+from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world
 
 
 @pytest.fixture(scope="module")

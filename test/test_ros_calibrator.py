@@ -136,7 +136,7 @@ def assert_cancelled(out: Any) -> None:
 
 def assert_succeeded(out: Any, scene: Path) -> None:
     from semcal_ros.io.files import read_pose
-    from semcal_ros.pose import translation_error
+    from semcal_ros.engine.pose import translation_error
 
     assert out.accepted and out.status == "succeeded", (out.status, out.result)
     r = out.result
@@ -160,7 +160,7 @@ def assert_succeeded(out: Any, scene: Path) -> None:
 
 def assert_quality(r: Any) -> None:
     """A success carries its quality report: a verdict with its reason and the figures."""
-    from semcal_ros.quality import VERDICTS
+    from semcal_ros.engine.quality import VERDICTS
 
     assert r.verdict in VERDICTS and r.verdict_reason, (r.verdict, r.verdict_reason)
     assert f"verdict {r.verdict}" in r.message
@@ -251,7 +251,7 @@ def _message_case(topic: str, make: Any, key: str):
 
 
 def _cloud(c: Calibrator, xyz: np.ndarray) -> Any:
-    from semcal_ros.cloud import LabelledCloud
+    from semcal_ros.engine.cloud import LabelledCloud
 
     cloud = LabelledCloud(np.asarray(xyz, float), np.full(len(xyz), 50, np.uint16))
     return conv.cloud_to_pointcloud2(cloud, conv.make_header("map", 1.0), extra_fields=False)
@@ -367,7 +367,7 @@ def test_a_degenerate_best_pose_is_never_published(calibrator):
     from geometry_msgs.msg import TransformStamped
 
     from semcal_ros.io.files import read_pose
-    from semcal_ros.pose import Pose
+    from semcal_ros.engine.pose import Pose
     from semcal_ros.ros.client import make_goal
 
     c = calibrator

@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from semcal_ros.camera import CameraModel  # noqa: E402
+from semcal_ros.engine.camera import CameraModel  # noqa: E402
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros.camera_inputs import (CameraInputs, CameraTopics,  # noqa: E402
                                           camera_topics)

@@ -14,9 +14,9 @@ from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField  # noqa: E402
 
-from semcal_ros.camera import CameraModel  # noqa: E402
-from semcal_ros.cloud import LabelledCloud  # noqa: E402
-from semcal_ros.pose import Pose, rotation_error_deg, translation_error  # noqa: E402
+from semcal_ros.engine.camera import CameraModel  # noqa: E402
+from semcal_ros.engine.cloud import LabelledCloud  # noqa: E402
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error  # noqa: E402
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 from semcal_ros.ros.params import declare_and_read, read_dataclass  # noqa: E402
@@ -289,7 +289,7 @@ def test_config_file_matches_node_parameters(node, defaults):
     ``mapping.*`` and ``runner.*``, may gain fields the file does not list yet)."""
     from pathlib import Path
 
-    from semcal_ros.config import apply_flat, dataclass_fields_flat, load_node_params
+    from semcal_ros.engine.config import apply_flat, dataclass_fields_flat, load_node_params
 
     path = Path(__file__).resolve().parents[1] / "config" / f"{node}.yaml"
     flat = load_node_params(path, node)
@@ -318,8 +318,8 @@ def test_add_label_field_keeps_every_field_and_replaces_a_label():
 def test_calibrator_config_file_holds_only_node_and_engine_parameters():
     from pathlib import Path
 
-    from semcal_ros.config import apply_flat, dataclass_fields_flat, load_node_params
-    from semcal_ros.params import CalibrationParams
+    from semcal_ros.engine.config import apply_flat, dataclass_fields_flat, load_node_params
+    from semcal_ros.engine.params import CalibrationParams
     from semcal_ros.ros.nodes.calibrator import CalibratorNodeParams
 
     flat = load_node_params(Path(__file__).resolve().parents[1] / "config" / "calibrator.yaml",
@@ -338,7 +338,7 @@ def test_calibrator_config_file_holds_only_node_and_engine_parameters():
 def test_goal_options_become_engine_parameters():
     from semcal_interfaces.action import Calibrate
 
-    from semcal_ros.params import CalibrationParams
+    from semcal_ros.engine.params import CalibrationParams
     from semcal_ros.ros.calibrate_goal import goal_params
     from semcal_ros.ros.client import make_goal
 
@@ -357,8 +357,8 @@ def test_goal_options_become_engine_parameters():
 
 
 def test_goal_request_checks_inputs():
-    from semcal_ros.params import CalibrationParams
-    from semcal_ros.labels import LabelMapping
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.labels import LabelMapping
     from semcal_ros.ros.calibrate_goal import Inputs, goal_request
     from semcal_ros.ros.client import make_goal
     from semcal_ros.ros.held_map import HeldMap

@@ -157,7 +157,7 @@ def test_image_segmenter_node_labels_images(graph, listener, tmp_path):
     from onnx_models import colour_model
     from sensor_msgs.msg import Image
 
-    from semcal_ros.labels import CITYSCAPES_ID, INVALID
+    from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID
 
     palette = np.array([[250, 20, 20], [20, 240, 20], [20, 20, 250], [128, 128, 128]])
     w, h = 96, 64
@@ -194,7 +194,7 @@ def test_cloud_segmenter_node_adds_labels(graph, listener, tmp_path):
     import yaml
     from onnx_models import range_channel_model
 
-    from semcal_ros.labels import KITTI_ID
+    from semcal_ros.engine.labels import KITTI_ID
 
     means, stds = [12.12, 10.88, 0.23, -1.04, 0.21], [12.32, 11.47, 6.91, 0.86, 0.16]
     model = range_channel_model(tmp_path / "range.onnx", 0, [5.0, 20.0], means[0], stds[0],
@@ -250,7 +250,7 @@ def test_segmenter_without_model_exits_with_a_clear_error(graph):
 
 # --- calibrator ------------------------------------------------------------------------------
 def test_calibrator_answers_goals_it_cannot_run_and_stays_up(graph, listener):
-    from semcal_ros.pose import Pose
+    from semcal_ros.engine.pose import Pose
     from semcal_ros.ros.client import CalibrateClient, make_goal
 
     cal = graph.start_node("calibrator")
@@ -372,7 +372,7 @@ def test_live_pipeline_calibrates_the_demo_scene(graph, listener, demo_scene, tm
     from semcal_interfaces.srv import SaveMap
     from semcal_ros.io.files import read_camera_info, read_pose
     from semcal_ros.io.ply import read_ply
-    from semcal_ros.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
 
     overlay_file = tmp_path / "overlay.png"

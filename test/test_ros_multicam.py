@@ -33,7 +33,7 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
     from tf2_msgs.msg import TFMessage
 
     from semcal_ros.io.files import read_pose
-    from semcal_ros.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
 
     scene = scene_factory("junction", 0, "ideal", cameras=2, scans=20, write_scans=False)
@@ -128,7 +128,7 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
         picture = conv.image_to_rgb(overlays[-1])
         assert picture.shape == (msgs[cams[1]["topics"]["camera_info"]].height,
                                  msgs[cams[1]["topics"]["camera_info"]].width, 3)
-        from semcal_ros.overlay import VERDICT_COLOURS
+        from semcal_ros.engine.overlay import VERDICT_COLOURS
 
         banner = np.median(picture[:6, :40].reshape(-1, 3), axis=0)  # left of the text
         nearest = min(VERDICT_COLOURS, key=lambda v: np.abs(banner - VERDICT_COLOURS[v]).sum())

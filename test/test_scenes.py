@@ -14,15 +14,15 @@ from plyfile import PlyData
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from semcal_ros.camera import CameraModel
+from semcal_ros.engine.camera import CameraModel
 from semcal_ros.io.files import read_camera_info, read_label_image, read_pose, read_rgb_image
 from semcal_ros.io.ply import read_ply
-from semcal_ros.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, LabelMapping
-from semcal_ros.pose import Pose, rotation_error_deg, translation_error
-from semcal_ros.scenes import SIZES, SceneOptions, catalogue
-from semcal_ros.scenes.generate import vehicle_poses
-from semcal_ros.scenes.layouts import KINDS, build_layout
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, LabelMapping
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
+from semcal_tools.scenes import SIZES, SceneOptions, catalogue
+from semcal_tools.scenes.generate import vehicle_poses
+from semcal_tools.scenes.layouts import KINDS, build_layout
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.mapping.filters import voxel_downsample
 from scene_fingerprints import PINNED_FILE, PINNED_FILES, compare, fingerprint, key_name
 
@@ -503,7 +503,7 @@ def test_camera_rig_scene_has_each_camera_its_files_topics_and_a_map_that_fits_i
 
 
 def test_camera_rig_is_for_junctions_and_at_most_eight():
-    from semcal_ros.scenes.rig import camera_rig
+    from semcal_tools.scenes.rig import camera_rig
 
     rng = lambda k: np.random.default_rng(k)  # noqa: E731
     with pytest.raises(ValueError, match="junction"):

@@ -18,9 +18,9 @@ from scipy.spatial import cKDTree
 
 from onnx_models import colour_model, conv1x1_model, range_channel_model
 from semcal_ros.cli import main
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io import files, ply
-from semcal_ros.labels import (
+from semcal_ros.engine.labels import (
     CITYSCAPES_ID, CITYSCAPES_PALETTE, INVALID, KITTI_ID, SEMANTIC_KITTI, LabelMapping,
 )
 from semcal_ros.segmentation.cloud import CloudSegmenter, project

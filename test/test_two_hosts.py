@@ -23,7 +23,7 @@ pytest.importorskip("rclpy")
 
 import netns  # noqa: E402
 
-from semcal_ros.ros.launch import DomainLock  # noqa: E402
+from semcal_tools.launch import DomainLock  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -74,7 +74,7 @@ def test_namespaces_hold_only_loopback_and_the_link(two_hosts):
 
 def test_vehicle_map_crosses_the_link_and_the_roadside_unit_calibrates(two_hosts, demo_scene):
     from semcal_ros.io.files import read_pose
-    from semcal_ros.pose import Pose, rotation_error_deg, translation_error
+    from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 
     link, logs = two_hosts.link, two_hosts.log_dir
     before = link.vehicle.counters()

@@ -62,7 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _params(args: argparse.Namespace, crop_center_default):
-    from semcal_ros.config import apply_flat, load_node_params
+    from semcal_ros.engine.config import apply_flat, load_node_params
     from semcal_ros.mapping import MapBuildParams
 
     # the node's file: the builder's parameters are its ``mapping.*`` group

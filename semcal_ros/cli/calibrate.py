@@ -1,7 +1,7 @@
 """``semcal calibrate``: one calibration from files, the result as a pose YAML.
 
 Every input is checked before the (minutes long) work starts, with the checks the ``calibrate``
-action uses (:mod:`semcal_ros.validation`): parameters named, output folders writable, frames
+action uses (:mod:`semcal_ros.engine.validation`): parameters named, output folders writable, frames
 matching, the initial pose near the map; a degenerate best pose is an error, never a result.
 """
 
@@ -53,13 +53,13 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from semcal_ros import validation
+    from semcal_ros.engine import validation
     from semcal_ros.io import files, ply
-    from semcal_ros.labels import LabelMapping, colorize
-    from semcal_ros.optimize import Progress, calibrate
-    from semcal_ros.params import CalibrationParams
-    from semcal_ros.problem import mapping_for
-    from semcal_ros.overlay import annotate_quality, loss_curve, render_overlay
+    from semcal_ros.engine.labels import LabelMapping, colorize
+    from semcal_ros.engine.search import Progress, calibrate
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.problem import mapping_for
+    from semcal_ros.engine.overlay import annotate_quality, loss_curve, render_overlay
 
     # everything checkable is checked before the work starts (the same checks as the action)
     params = CalibrationParams.from_file(args.config)

@@ -34,10 +34,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from semcal_ros.drift import DriftChecker, DriftParams
+    from semcal_ros.engine.drift import DriftChecker, DriftParams
     from semcal_ros.io import files, ply
-    from semcal_ros.labels import LabelMapping
-    from semcal_ros.params import CalibrationParams
+    from semcal_ros.engine.labels import LabelMapping
+    from semcal_ros.engine.params import CalibrationParams
 
     engine = CalibrationParams.from_file(args.config)
     drift = DriftParams.from_file(args.drift_config)

@@ -121,9 +121,9 @@ def write_truth_overlay(scene: Path, out: Path | None = None) -> Path:
     """The scene's map rendered at its ground truth over its image, with the scene's own
     calibrator.yaml label settings (merge, parked vehicles)."""
     from semcal_ros.io import files, ply
-    from semcal_ros.overlay import render_overlay
-    from semcal_ros.params import CalibrationParams
-    from semcal_ros.problem import mapping_for
+    from semcal_ros.engine.overlay import render_overlay
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.problem import mapping_for
 
     params = CalibrationParams.from_file(scene / "calibrator.yaml")
     picture = render_overlay(ply.read_ply(scene / "map.ply"),

@@ -62,9 +62,9 @@ def read_scan_file(path: Path):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from semcal_ros.cloud import LabelledCloud
+    from semcal_ros.engine.cloud import LabelledCloud
     from semcal_ros.io.ply import write_ply
-    from semcal_ros.labels import SEMANTIC_KITTI
+    from semcal_ros.engine.labels import SEMANTIC_KITTI
     from semcal_ros.segmentation.cloud import CloudSegmenter
     from semcal_ros.segmentation.decode import class_shares
     from semcal_ros.segmentation.onnx_runner import RunnerParams
@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
 
         params = GeometricParams()
         if args.config is not None:
-            from semcal_ros.config import apply_flat, load_node_params
+            from semcal_ros.engine.config import apply_flat, load_node_params
 
             flat = load_node_params(args.config, "cloud_segmenter")
             params = apply_flat(params, {k.removeprefix("geometric."): v for k, v in flat.items()

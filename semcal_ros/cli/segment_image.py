@@ -30,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from semcal_ros.io.files import write_label_image, write_rgb_image
-    from semcal_ros.labels import CITYSCAPES
+    from semcal_ros.engine.labels import CITYSCAPES
     from semcal_ros.segmentation.decode import class_shares
     from semcal_ros.segmentation.image import ImageSegmenter, label_overlay, read_colour_image
     from semcal_ros.segmentation.onnx_runner import RunnerParams

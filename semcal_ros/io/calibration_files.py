@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from semcal_ros.camera import CameraModel
+from semcal_ros.engine.camera import CameraModel
 from semcal_ros.io.files import load_yaml
 from semcal_ros.io.kitti import read_key_values
 

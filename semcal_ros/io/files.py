@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import yaml
 
-from semcal_ros.camera import CameraModel
-from semcal_ros.pose import Pose
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.pose import Pose
 
 
 def load_yaml(path: str | Path, what: str) -> dict:

@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 
 if TYPE_CHECKING:
-    from semcal_ros.camera import CameraModel
+    from semcal_ros.engine.camera import CameraModel
 
 
 def _require_file(path: str | Path, what: str) -> Path:
@@ -196,7 +196,7 @@ def camera_from_calib(calib: dict[str, np.ndarray], width: int, height: int,
     stored with 10 digits and is not exactly orthonormal; it is projected onto the nearest
     rotation (SVD) so the pose is a proper rigid transform (the change is below 1e-4 deg).
     """
-    from semcal_ros.camera import CameraModel
+    from semcal_ros.engine.camera import CameraModel
 
     if camera not in calib:
         raise ValueError(f"calibration has no '{camera}' projection matrix "

@@ -3,7 +3,7 @@
 Open3D's tensor reader (``open3d.t.io``) decodes all three encodings (binary_compressed is LZF,
 as the PJLab rig writes it) and keeps fields the legacy reader drops (intensity, ring, per-point
 timestamp), so no parser is written here: this module only turns its result into the project's
-:class:`~semcal_ros.cloud.LabelledCloud` and names a bad file in one line.
+:class:`~semcal_ros.engine.cloud.LabelledCloud` and names a bad file in one line.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 
 #: PCD fields read as the intensity channel, first match wins (vendors name it differently).
 INTENSITY_FIELDS = ("intensity", "reflectance", "remission", "i")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from plyfile import PlyData, PlyElement, PlyParseError
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 
 
 def read_ply(path: str | Path, require_label: bool = True) -> LabelledCloud:

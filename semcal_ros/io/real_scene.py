@@ -34,13 +34,13 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from semcal_ros.camera import CameraModel
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io import files, kitti, ply
 from semcal_ros.io.scene_scans import write_scan_poses
-from semcal_ros.labels import (CITYSCAPES, CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID, KITTI_ID,
+from semcal_ros.engine.labels import (CITYSCAPES, CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID, KITTI_ID,
                                MOVING_KITTI, SEMANTIC_KITTI, VEHICLE_KITTI, moving_id_of)
-from semcal_ros.pose import Pose
+from semcal_ros.engine.pose import Pose
 
 #: Scan file formats read by :func:`read_lidar_scan`.
 SCAN_FORMATS = (".bin", ".pcd", ".ply")
@@ -381,7 +381,7 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     ``label_image(rgb)`` returns the trainId label image and where it came from; it is called
     before anything is written, so a bad label image leaves no folder behind.
     """
-    from semcal_ros.scenes.generate import perturbed_initial
+    from semcal_ros.engine.pose import perturbed_initial
 
     start = time.perf_counter()
     out = Path(out)

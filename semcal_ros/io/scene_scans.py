@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io.files import load_yaml
 from semcal_ros.io.files import pose_from_dict
 from semcal_ros.io.ply import read_ply

@@ -22,8 +22,8 @@ from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from semcal_ros.cloud import LabelledCloud
-from semcal_ros.labels import LabelMapping
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.mapping import filters
 from semcal_ros.mapping.deskew import (
     DeskewParams, body_twist, correct_vertical_angle, deskew_points, point_times,

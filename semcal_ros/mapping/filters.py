@@ -1,6 +1,6 @@
 """Per-point filters of the map builder: validity, range, voxel grid, dynamic classes, crop.
 
-Each takes and returns a :class:`~semcal_ros.cloud.LabelledCloud`, so the builder composes them
+Each takes and returns a :class:`~semcal_ros.engine.cloud.LabelledCloud`, so the builder composes them
 and tests can check each alone.
 """
 
@@ -11,8 +11,8 @@ from typing import Any, Mapping
 import numpy as np
 from scipy.spatial import cKDTree
 
-from semcal_ros.cloud import LabelledCloud
-from semcal_ros.labels import KITTI_ID
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import KITTI_ID
 
 #: SemanticKITTI "unlabeled" (0): loses every voxel vote against a real class.
 UNLABELED = KITTI_ID["unlabeled"]

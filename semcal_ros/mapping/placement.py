@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.mapping.deskew import (
     DeskewParams, azimuth_times, correct_vertical_angle, deskew_points, twists_from_poses)
 from semcal_ros.mapping.filters import apply_rigid

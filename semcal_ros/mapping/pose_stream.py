@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 def as_matrix(pose: Any, what: str = "pose") -> np.ndarray:
     """A rigid 4x4 transform from a 4x4 array or an object with ``rotation`` and ``translation``
-    (e.g. :class:`semcal_ros.pose.Pose`); refuses non-finite or non-rigid input."""
+    (e.g. :class:`semcal_ros.engine.pose.Pose`); refuses non-finite or non-rigid input."""
     if hasattr(pose, "rotation") and hasattr(pose, "translation"):
         matrix = np.eye(4)
         matrix[:3, :3] = np.asarray(pose.rotation, float)

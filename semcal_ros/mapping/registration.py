@@ -17,7 +17,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial.transform import Rotation
 
-from semcal_ros.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.mapping.filters import apply_rigid, voxel_downsample
 
 _reg = o3d.pipelines.registration  # pose graph (legacy API)

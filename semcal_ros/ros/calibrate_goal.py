@@ -1,7 +1,7 @@
 """The Calibrate action's goal checked and turned into the engine's inputs.
 
 Kept apart from the node so that what makes a goal invalid, and what each goal field does to the
-:class:`~semcal_ros.params.CalibrationParams`, can be read (and tested) without DDS. Every problem
+:class:`~semcal_ros.engine.params.CalibrationParams`, can be read (and tested) without DDS. Every problem
 is named in one message, because the caller only sees the action result's text.
 """
 
@@ -12,11 +12,11 @@ from typing import Any
 
 import numpy as np
 
-from semcal_ros import validation
-from semcal_ros.camera import CameraModel
-from semcal_ros.config import apply_flat
-from semcal_ros.params import CalibrationParams
-from semcal_ros.pose import Pose
+from semcal_ros.engine import validation
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.config import apply_flat
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.pose import Pose
 from semcal_ros.ros.held_map import HeldMap
 
 ROLL_CHOICES = {0: None, 1: False, 2: True}  # ROLL_DEFAULT, ROLL_FIXED, ROLL_FREE
@@ -55,7 +55,7 @@ def _vector(v: Any) -> list[float]:
 
 def goal_problems(goal: Any, inputs: Inputs) -> list[str]:
     """Everything wrong with ``goal`` given ``inputs``; empty when it can run. The checks are
-    :mod:`semcal_ros.validation`'s, shared with ``semcal calibrate``."""
+    :mod:`semcal_ros.engine.validation`'s, shared with ``semcal calibrate``."""
     pose = goal.initial_pose.pose
     position = [pose.position.x, pose.position.y, pose.position.z]
     orientation = [pose.orientation.x, pose.orientation.y, pose.orientation.z,

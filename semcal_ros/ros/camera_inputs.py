@@ -30,7 +30,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from semcal_ros.camera import CameraModel
+from semcal_ros.engine.camera import CameraModel
 from semcal_ros.io.images import UndecodableImage
 from semcal_ros.ros import compressed
 from semcal_ros.ros import conversions as conv

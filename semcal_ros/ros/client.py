@@ -15,7 +15,7 @@ from rclpy.action import ActionClient
 from rclpy.node import Node
 
 from semcal_interfaces.action import Calibrate
-from semcal_ros.pose import Pose
+from semcal_ros.engine.pose import Pose
 from semcal_ros.ros import conversions as conv
 
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_ABORTED: "aborted",

@@ -18,10 +18,10 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from semcal_ros import validation
-from semcal_ros.camera import ALIASES, COEFFICIENTS, SUPPORTED_MODELS, CameraModel
-from semcal_ros.cloud import LabelledCloud
-from semcal_ros.pose import Pose
+from semcal_ros.engine import validation
+from semcal_ros.engine.camera import ALIASES, COEFFICIENTS, SUPPORTED_MODELS, CameraModel
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.pose import Pose
 
 #: PointField datatype -> numpy type (without byte order).
 POINTFIELD_TO_NUMPY: dict[int, str] = {

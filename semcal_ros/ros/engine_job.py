@@ -29,7 +29,7 @@ import traceback
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from semcal_ros.pose import Pose
+from semcal_ros.engine.pose import Pose
 from semcal_ros.ros.runtime import release_free_memory
 
 
@@ -120,7 +120,7 @@ class GoalState:
     running: bool = False
 
     def progress(self, p: Any) -> None:
-        """An engine :class:`~semcal_ros.optimize.Progress` report."""
+        """An engine :class:`~semcal_ros.engine.search.Progress` report."""
         self.stage, self.evaluations = p.stage, p.evaluations
         self.best_loss, self.best_pose = p.best_loss, p.best_pose
 

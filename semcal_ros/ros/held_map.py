@@ -2,10 +2,10 @@
 
 A calibrator serving several cameras used to crop and prepare the map again for every goal, and
 held the received cloud besides. Here a received map is checked (finite points only, labels
-required), prepared once with the node's label mapping (:func:`semcal_ros.render.prepare_map`:
+required), prepared once with the node's label mapping (:func:`semcal_ros.engine.render.prepare_map`:
 dynamic and unmapped classes dropped, float32 local coordinates, Morton chunks) and the cloud is
 then dropped: what stays is the prepared map, its point count and bounding box. Every
-:class:`~semcal_ros.problem.Problem` of every camera shares it (``Problem(..., prepared=...)``).
+:class:`~semcal_ros.engine.problem.Problem` of every camera shares it (``Problem(..., prepared=...)``).
 
 The whole map is prepared (no crop): cameras stand anywhere on it. The renderer still draws only
 what lies within ``render.far`` of the camera (chunks outside the view are culled).
@@ -17,11 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcal_ros.cloud import LabelledCloud
-from semcal_ros.labels import LabelMapping
-from semcal_ros.render import PreparedMap, prepare_map
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import LabelMapping
+from semcal_ros.engine.render import PreparedMap, prepare_map
 
-#: What a :class:`~semcal_ros.problem.Problem` gets as its cloud when given a prepared map (it
+#: What a :class:`~semcal_ros.engine.problem.Problem` gets as its cloud when given a prepared map (it
 #: only checks the cloud's points; the prepared map is what it renders).
 EMPTY_CLOUD = LabelledCloud(np.zeros((0, 3)), np.zeros(0, np.uint16))
 

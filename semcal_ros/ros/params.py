@@ -3,7 +3,7 @@
 Every node's parameters are one dataclass tree (defaults in code, documented there). Its flat,
 dotted field names (``mapping.voxel``) are declared as ROS parameters, so a ROS parameter file
 (``config/<node>.yaml``) and ``--ros-args -p mapping.voxel:=0.2`` both reach them, and read back
-through :func:`semcal_ros.config.apply_flat`, which coerces types and names a bad value. Parameters
+through :func:`semcal_ros.engine.config.apply_flat`, which coerces types and names a bad value. Parameters
 are declared with dynamic typing because YAML writes ``2`` for a float field and ``[]`` for an
 empty list; the dataclass, not rclpy, decides what is valid.
 """
@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
-from semcal_ros.config import apply_flat, dataclass_fields_flat
+from semcal_ros.engine.config import apply_flat, dataclass_fields_flat
 
 T = TypeVar("T")
 

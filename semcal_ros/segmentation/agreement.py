@@ -4,7 +4,7 @@ A real image segmenter has no ground truth on KITTI odometry frames, but the Sem
 labels of the scan taken with the image do: projected through the camera's projection matrix
 and the lidar extrinsic, each point says which class its pixel should have. Agreement is the
 share of projected points whose pixel carries the point's class, compared in the aligned classes
-of :class:`semcal_ros.labels.LabelMapping` (so a map and a label image are compared the way the
+of :class:`semcal_ros.engine.labels.LabelMapping` (so a map and a label image are compared the way the
 calibrator compares them), overall and per class.
 
 Points are not tested for occlusion: the lidar sits 0.3 m from the camera, so a few points behind
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from semcal_ros.labels import CITYSCAPES_ID, INVALID, LabelMapping
+from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID, LabelMapping
 
 #: The classes the agreement is reported for (the paper's KITTI case: road and sidewalk merged).
 REPORTED_CLASSES = ("road", "building", "vegetation", "terrain", "pole", "car")

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from semcal_ros.labels import KITTI_ID
+from semcal_ros.engine.labels import KITTI_ID
 
 ROAD, SIDEWALK, TERRAIN = KITTI_ID["road"], KITTI_ID["sidewalk"], KITTI_ID["terrain"]
 BUILDING, VEGETATION, TRUNK = KITTI_ID["building"], KITTI_ID["vegetation"], KITTI_ID["trunk"]
@@ -433,11 +433,11 @@ class PointAgreement:
 def point_agreement(predicted: np.ndarray, reference: np.ndarray, mapping=None,
                     classes: tuple[str, ...] = TABLE_CLASSES) -> PointAgreement:
     """Compare SemanticKITTI ids in the engine's aligned classes (``mapping``: a
-    :class:`~semcal_ros.labels.LabelMapping`, default: the engine's alignment with every class
+    :class:`~semcal_ros.engine.labels.LabelMapping`, default: the engine's alignment with every class
     kept, cars included). Points whose reference has no aligned class (unlabeled, outlier,
     other-object) are left out; a prediction without one (0) counts as a miss. ``"ground"``
     is added: any ground class predicted for any ground reference."""
-    from semcal_ros.labels import CITYSCAPES_ID, INVALID, LabelMapping
+    from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID, LabelMapping
 
     mapping = mapping or LabelMapping(dynamic=())
     ref = mapping.map_lidar(reference)

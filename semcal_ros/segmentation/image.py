@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from semcal_ros.io.files import imread
-from semcal_ros.labels import INVALID, colorize
+from semcal_ros.engine.labels import INVALID, colorize
 from semcal_ros.segmentation.decode import labels_from_class_map, labels_from_logits
 from semcal_ros.segmentation.model_config import ImageModelConfig, load_model_config
 from semcal_ros.segmentation.onnx_runner import OnnxRunner, RunnerParams

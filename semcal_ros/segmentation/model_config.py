@@ -3,7 +3,7 @@
 semcal_ros ships no network; users bring the ONNX export they trust. A small YAML file next to the
 model says how to feed it (input size, channel order, normalisation, range-image geometry) and how
 to read its output (logits or a class map, model class -> target class). The target classes are
-the engine's own taxonomies from :mod:`semcal_ros.labels` (Cityscapes trainIds for images,
+the engine's own taxonomies from :mod:`semcal_ros.engine.labels` (Cityscapes trainIds for images,
 SemanticKITTI ids for scans), resolved here by name or id, so a model config cannot invent classes
 the calibrator does not know.
 
@@ -23,7 +23,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from semcal_ros.io.files import load_yaml
-from semcal_ros.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, SEMANTIC_KITTI
+from semcal_ros.engine.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, SEMANTIC_KITTI
 
 #: Output kinds a model may have: per-class scores (N x C x H x W) or an argmax already taken
 #: inside the model (N x H x W, or N x 1 x H x W as MMDeploy exports it).

@@ -1,7 +1,7 @@
 """``calibration_monitor``: the drift watch of one camera or several on one map (docs/drift.md).
 
 Every ``period`` seconds, per camera, the newest label image is checked against the camera's
-current calibration (:class:`semcal_ros.drift.DriftChecker`: the loss at the calibration against
+current calibration (:class:`semcal_ros.engine.drift.DriftChecker`: the loss at the calibration against
 a small coarse search around it). The result goes to ``/diagnostics`` (one status per camera:
 OK, WARN or ERROR with the estimated drift in cm and deg) and, latched, to
 ``calibration/drift`` (``<name>/calibration/drift`` for a named camera;
@@ -40,10 +40,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
 from semcal_interfaces.msg import CalibrationDrift
-from semcal_ros.drift import DriftChecker, DriftParams, DriftReport
-from semcal_ros.labels import LabelMapping
-from semcal_ros.params import CalibrationParams
-from semcal_ros.pose import Pose
+from semcal_ros.engine.drift import DriftChecker, DriftParams, DriftReport
+from semcal_ros.engine.labels import LabelMapping
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.pose import Pose
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros import qos
 from semcal_ros.ros.camera_inputs import CameraInputs, camera_topics
@@ -105,8 +105,8 @@ class CalibrationMonitorNode(Node):
         self.opts = declare_and_read(self, MonitorParams())
         self.engine = declare_and_read(self, CalibrationParams(), prefix="engine.")
         self.drift = declare_and_read(self, DriftParams(), prefix="drift.")
-        from semcal_ros.drift import check_params
-        from semcal_ros.problem import mapping_for
+        from semcal_ros.engine.drift import check_params
+        from semcal_ros.engine.problem import mapping_for
 
         user = LabelMapping.from_yaml(self.opts.label_mapping) if self.opts.label_mapping \
             else None

@@ -12,7 +12,7 @@ its name; empty with a single camera). Goals run one after another on one long-l
 thread (:mod:`semcal_ros.ros.engine_job`): a goal for another camera waits in the queue (its
 feedback says "queued"); a second goal for a camera already running or queued is accepted and
 aborted at once with the reason (the action protocol's rejection carries none). A goal that
-cannot run is aborted with a message naming every problem (:mod:`semcal_ros.validation`, shared
+cannot run is aborted with a message naming every problem (:mod:`semcal_ros.engine.validation`, shared
 with ``semcal calibrate``), and a degenerate best pose is never published. Input messages that
 cannot be used are refused with the reason logged and in the diagnostics, and what the node held
 is kept.
@@ -43,10 +43,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, PointCloud2
 
 from semcal_interfaces.action import Calibrate
-from semcal_ros.cloud import LabelledCloud
-from semcal_ros.labels import LabelMapping, colorize
-from semcal_ros.params import CalibrationParams
-from semcal_ros import validation
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import LabelMapping, colorize
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine import validation
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros import qos
 from semcal_ros.ros.calibrate_goal import Inputs, Request, goal_request, input_problems
@@ -93,7 +93,7 @@ class CalibratorNodeParams:
 class _Outcome:
     """What the engine thread hands back for one goal."""
 
-    result: Any  # semcal_ros.optimize.CalibrationResult
+    result: Any  # semcal_ros.engine.search.CalibrationResult
     overlay: np.ndarray | None = None  # RGB, rendered for a result worth publishing
     overlay_error: str = ""
 
@@ -111,7 +111,7 @@ class CalibratorNode(Node):
         self.defaults = declare_and_read(self, CalibrationParams(), prefix="engine.")
         validation.check(validation.output_problems(self.opts.overlay_file,
                                                     "parameter 'overlay_file':"))
-        from semcal_ros.problem import mapping_for
+        from semcal_ros.engine.problem import mapping_for
 
         self.mapping = LabelMapping.from_yaml(self.opts.label_mapping) \
             if self.opts.label_mapping else LabelMapping()
@@ -294,8 +294,8 @@ class CalibratorNode(Node):
                    camera: CameraInputs) -> _Outcome:
         """(engine thread) The engine's procedure on the shared prepared map, then the
         overlay."""
-        from semcal_ros.optimize import solve
-        from semcal_ros.problem import Problem
+        from semcal_ros.engine.search import solve
+        from semcal_ros.engine.problem import Problem
 
         t0 = time.perf_counter()
         problem = Problem(EMPTY_CLOUD, inputs.labels, inputs.camera, request.initial.translation,
@@ -315,7 +315,7 @@ class CalibratorNode(Node):
                  ) -> np.ndarray:
         """The map rendered at the result over the camera's newest image (the label colours
         without one), exactly as the engine renders it, with the verdict drawn on it."""
-        from semcal_ros.overlay import annotate_quality, blend_labels
+        from semcal_ros.engine.overlay import annotate_quality, blend_labels
 
         model = problem.camera
         rgb = camera.snapshot().rgb
@@ -328,7 +328,7 @@ class CalibratorNode(Node):
     def _answer(self, handle: Any, job: EngineJob, camera: CameraInputs, request: Request
                 ) -> Calibrate.Result:
         if job.error is not None:
-            from semcal_ros.optimize import Cancelled
+            from semcal_ros.engine.search import Cancelled
 
             exc = job.error
             if isinstance(exc, (Cancelled, JobCancelled)):

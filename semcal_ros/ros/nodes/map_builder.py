@@ -44,7 +44,7 @@ from std_srvs.srv import Trigger
 from semcal_interfaces.srv import SaveMap
 from semcal_ros.mapping import MapBuildParams, ScanRejected, StreamingMapBuilder
 from semcal_ros.mapping.time_matching import Reset, ScanPoseMatcher
-from semcal_ros.pose import Pose
+from semcal_ros.engine.pose import Pose
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros import qos
 from semcal_ros.ros.diagnostics import Diagnostics, Level

@@ -9,7 +9,7 @@ from typing import Any, Callable
 import onnx
 import yaml
 
-from semcal_ros.labels import CITYSCAPES
+from semcal_ros.engine.labels import CITYSCAPES
 from semcal_ros.segmentation.export import ARCH_NAMES, DEFAULT_SIZE, espnet, espnetv2
 from semcal_ros.segmentation.export.graph import Weights
 from semcal_ros.segmentation.model_config import model_config_from_dict

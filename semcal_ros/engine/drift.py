@@ -1,0 +1,286 @@
+"""Drift check: is a camera's calibration still right, judged from its newest label image.
+
+Cameras get knocked, heat-soaked and re-aimed. Recalibrating every few minutes would cost a full
+search each time; asking instead whether a *small* search around the current calibration finds a
+clearly better pose costs a few dozen coarse renders. :func:`check_drift` does that on a
+:class:`~semcal_ros.engine.problem.Problem` (a prepared map shared between checks):
+
+1. the loss at the calibration, at the check's resolution (``scale``);
+2. a Nelder-Mead search (:class:`~semcal_ros.engine.search.Search`, the engine's own) around it inside
+   small bounds (``bound_m``, ``bound_deg``): pan and tilt alone first (``turn_share`` of the
+   renders), then every free axis, at most ``max_evaluations`` renders in all;
+3. the drift is the distance from the calibration to the best pose found; it counts only if that
+   pose also lowers the loss by ``min_gain`` (relative): a search always finds *some* pose a hair
+   better on noisy labels, and a real move of the camera lowers the loss by far more.
+
+Levels: ``ok``; ``warn`` when the drift is above ``warn_translation_m`` or ``warn_rotation_deg``;
+``error`` above ``error_translation_m`` / ``error_rotation_deg`` or when the best pose lies at the
+search bounds (the camera moved further than the check can follow: recalibrate); ``unknown`` when
+the check cannot judge (no label image, the map covers too little of it, a degenerate view).
+The thresholds and how they were measured are in docs/drift.md. No ROS here: ``semcal check``
+and the ``calibration_monitor`` node both call :class:`DriftChecker`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.config import apply_flat, load_node_params
+from semcal_ros.engine.labels import LabelMapping
+from semcal_ros.engine.search import Search, _Counter
+from semcal_ros.engine.params import CalibrationParams, ScheduleParams
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
+from semcal_ros.engine.problem import Problem, mapping_for
+from semcal_ros.engine.render import PreparedMap, prepare_map
+
+LEVELS = ("ok", "warn", "error", "unknown")
+#: diagnostic_msgs/DiagnosticStatus levels (OK, WARN, ERROR, STALE for "cannot judge")
+DIAGNOSTIC_LEVEL = {"ok": 0, "warn": 1, "error": 2, "unknown": 3}
+
+
+@dataclass(frozen=True)
+class DriftParams:
+    """What one check costs and when it raises; docs/drift.md has the measurements."""
+
+    scale: int = 4  # renders at 1/scale resolution
+    bound_m: float = 0.25  # search bounds around the calibration: translation per axis
+    bound_deg: float = 0.75  # ... and pitch, yaw (and roll when the engine frees it)
+    simplex: float = 0.3  # initial simplex, as a fraction of the bounds
+    max_evaluations: int = 50  # renders of the search (plus one at the calibration)
+    turn_share: float = 0.4  # of them spent on pan and tilt alone first
+    min_gain: float = 0.05  # relative loss drop (beyond the reference's) that counts as drift
+    min_gain_absolute: float = 0.15  # the same without a reference check (semcal check alone)
+    min_coverage: float = 0.10  # the map must cover this share of the image's scene pixels
+    warn_translation_m: float = 0.03
+    warn_rotation_deg: float = 0.1
+    error_translation_m: float = 0.15
+    error_rotation_deg: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("bound_m", "bound_deg", "simplex", "warn_translation_m",
+                     "warn_rotation_deg", "error_translation_m", "error_rotation_deg"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"drift.{name} must be a finite number > 0, got {value}")
+        for name in ("min_gain", "min_gain_absolute", "min_coverage", "turn_share"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 <= value < 1):
+                raise ValueError(f"drift.{name} must be in [0, 1), got {value}")
+        if int(self.scale) != self.scale or not 1 <= self.scale <= 16:
+            raise ValueError(f"drift.scale must be an integer in 1..16, got {self.scale}")
+        if int(self.max_evaluations) != self.max_evaluations or self.max_evaluations < 1:
+            raise ValueError(f"drift.max_evaluations must be an integer >= 1, got "
+                             f"{self.max_evaluations}")
+        if self.error_translation_m < self.warn_translation_m or \
+                self.error_rotation_deg < self.warn_rotation_deg:
+            raise ValueError("drift.error_* thresholds must not be below the warn_* ones")
+        if self.error_translation_m > self.bound_m or self.error_rotation_deg > self.bound_deg:
+            raise ValueError(f"drift.error_* thresholds must lie inside the search bounds "
+                             f"(bound_m {self.bound_m}, bound_deg {self.bound_deg})")
+
+    @classmethod
+    def from_file(cls, path: str | None, node: str = "calibration_monitor") -> "DriftParams":
+        """The ``drift:`` group of a ROS 2 parameter file (config/calibration_monitor.yaml); an
+        unknown name in it is an error naming it."""
+        if not path:
+            return cls()
+        flat = {k[len("drift."):]: v for k, v in load_node_params(path, node).items()
+                if k.startswith("drift.")}
+        try:
+            return apply_flat(cls(), flat, strict=True)
+        except ValueError as exc:
+            raise ValueError(f"{path}: drift.{exc}" if "unknown" not in str(exc)
+                             else f"{path}: drift group: {exc}") from None
+
+
+@dataclass(frozen=True)
+class DriftReport:
+    level: str  # "ok" | "warn" | "error" | "unknown" (cannot judge)
+    message: str  # one line: the verdict and why
+    calibrated: Pose
+    estimated: Pose | None = None  # best pose the search found (None: cannot judge)
+    drift_translation_m: float = 0.0
+    drift_rotation_deg: float = 0.0
+    drift_xyz_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # map frame
+    loss_calibrated: float = math.nan
+    loss_best: float = math.nan
+    coverage: float = 0.0
+    evaluations: int = 0
+    seconds: float = 0.0
+    raw_vector: np.ndarray | None = None  # where the search ended (before any reference)
+    raw_gain: float = 0.0  # its relative loss drop (before any reference)
+
+    @property
+    def judged(self) -> bool:
+        return self.level != "unknown"
+
+    def summary(self) -> str:
+        """One line for logs and ``semcal check``."""
+        if not self.judged:
+            return f"CANNOT JUDGE: {self.message}"
+        return (f"{self.level.upper()}: {self.message} (loss {self.loss_calibrated:.5f} -> "
+                f"{self.loss_best:.5f}, {self.evaluations} renders, {self.seconds:.2f} s)")
+
+    def to_dict(self) -> dict:
+        t = self.estimated
+        return {
+            "level": self.level, "message": self.message,
+            "drift_translation_m": round(self.drift_translation_m, 4),
+            "drift_rotation_deg": round(self.drift_rotation_deg, 4),
+            "drift_xyz_m": [round(v, 4) for v in self.drift_xyz_m],
+            "loss_calibrated": float(self.loss_calibrated), "loss_best": float(self.loss_best),
+            "coverage": round(self.coverage, 4), "evaluations": self.evaluations,
+            "seconds": round(self.seconds, 3),
+            **({"estimated": {"translation": [float(v) for v in t.translation],
+                              "rotation": [float(v) for v in t.quaternion]}} if t else {}),
+        }
+
+
+def check_params(engine: CalibrationParams, drift: DriftParams) -> CalibrationParams:
+    """The engine parameters of a check: the engine's loss, render and label settings, but one
+    search stage at the check's resolution inside the check's small bounds."""
+    first = max(1, int(round(drift.max_evaluations * drift.turn_share)))
+    rest = max(1, int(drift.max_evaluations) - first)
+    # stages 0 and 1 at the check's resolution (pan/tilt, then all axes); the full-resolution
+    # stage the schedule must end with is never searched
+    scales = (int(drift.scale),) * 2 + ((1,) if drift.scale != 1 else ())
+    n = len(scales)
+    schedule = ScheduleParams(scales=scales, simplex=(drift.simplex,) * n, fatol=(1e-6,) * n,
+                              max_evaluations=(first, rest, rest)[:n],
+                              restarts=(0,) * n, xatol=1e-2)
+    search = replace(engine.search, bound_xyz=(drift.bound_m,) * 3,
+                     bound_pitch_deg=drift.bound_deg, bound_yaw_deg=drift.bound_deg,
+                     bound_roll_deg=drift.bound_deg, yaw_search=False)
+    return replace(engine, schedule=schedule, search=search)
+
+
+def unknown(calibrated: Pose, message: str, t0: float | None = None) -> DriftReport:
+    """A check that cannot judge, and why."""
+    seconds = time.perf_counter() - t0 if t0 is not None else 0.0
+    return DriftReport("unknown", message, calibrated, seconds=seconds)
+
+
+def _search(search: Search, problem: Problem, calibrated: Pose, dp: DriftParams
+            ) -> tuple[np.ndarray, float]:
+    """Pan and tilt first, then every free axis: a knock turns the view far more than it shifts
+    it (0.2 deg moves a point 30 m away by 10 cm, a 5 cm shift by 5 cm), and a two-parameter
+    search finds that turn in a few renders where a five-parameter one spends them all on the
+    simplex."""
+    free, scale = search.free, search.scale
+    turn = np.isin(free, (4, 5))
+    search.free, search.scale = free[turn], scale[turn]  # this check's own Search
+    vec, loss = search.nelder_mead(0, calibrated.vector(), 0)  # stage 0: pan and tilt
+    search.free, search.scale = free, scale
+    vec2, loss2 = search.nelder_mead(1, vec, 0)  # stage 1, same resolution: every free axis
+    return (vec2, loss2) if loss2 < loss else (vec, loss)
+
+
+def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = None,
+                reference: DriftReport | None = None) -> DriftReport:
+    """One check on a problem built with :func:`check_params` (its stage 0 is the check's
+    resolution); see the module docstring.
+
+    ``reference`` is a check of the same calibration on an image known to match it (the first
+    one after the calibration). A coarse search does not end exactly at the calibration even then
+    (reduced resolution moves the loss's minimum by a few cm / 0.1-0.2 deg, measured in
+    docs/drift.md); with a reference, drift and gain are counted from where the check ended on
+    it, so that offset is not reported as drift."""
+    dp = drift or DriftParams()
+    t0 = time.perf_counter()
+    start = problem.evaluate(calibrated, 0)
+    if start.coverage < dp.min_coverage:
+        return unknown(calibrated, f"the map covers {start.coverage * 100:.0f} % of the image at "
+                                   f"the calibration (< {dp.min_coverage * 100:.0f} %)", t0)
+    if problem.degenerate(start):
+        return unknown(calibrated, f"degenerate view at the calibration (loss {start.loss:.3g})",
+                       t0)
+    counter = _Counter(None, None)
+    search = Search(problem, counter)
+    vec, loss_best = _search(search, problem, calibrated, dp)
+    if loss_best >= start.loss:
+        vec, loss_best = calibrated.vector(), start.loss
+    best = Pose.from_vector(vec)
+    dt = translation_error(best, calibrated)
+    dr = rotation_error_deg(best, calibrated)
+    gain = (start.loss - loss_best) / start.loss if start.loss > 0 else 0.0
+    raw_vec, raw_gain = vec, gain
+    if reference is not None and reference.estimated is not None:
+        vec = vec - (reference.raw_vector - reference.calibrated.vector())
+        gain -= reference.raw_gain
+        best = Pose.from_vector(vec)
+        dt = translation_error(best, calibrated)
+        dr = rotation_error_deg(best, calibrated)
+    offset = (raw_vec - calibrated.vector())[search.free] / search.scale
+    at_bound = bool(np.any(np.abs(offset) > 0.95))
+    seconds = time.perf_counter() - t0
+    counted = gain >= (dp.min_gain if reference is not None else dp.min_gain_absolute)
+    what = f"drift {dt * 100:.1f} cm / {dr:.2f} deg"
+    if counted and at_bound:
+        level, why = "error", (f"{what} at the check's bounds ({dp.bound_m * 100:.0f} cm / "
+                               f"{dp.bound_deg:g} deg): moved further, recalibrate")
+    elif counted and (dt > dp.error_translation_m or dr > dp.error_rotation_deg):
+        level, why = "error", (f"{what} above {dp.error_translation_m * 100:.0f} cm / "
+                               f"{dp.error_rotation_deg:g} deg")
+    elif counted and (dt > dp.warn_translation_m or dr > dp.warn_rotation_deg):
+        level, why = "warn", (f"{what} above {dp.warn_translation_m * 100:.0f} cm / "
+                              f"{dp.warn_rotation_deg:g} deg")
+    elif counted:
+        level, why = "ok", f"{what}, within {dp.warn_translation_m * 100:.0f} cm / " \
+                           f"{dp.warn_rotation_deg:g} deg"
+    else:
+        need = dp.min_gain if reference is not None else dp.min_gain_absolute
+        level, why = "ok", (f"no clearly better pose nearby (the best, {what} away, lowers "
+                            f"the loss by {gain * 100:.1f} % < {need * 100:.0f} %)")
+    if not counted:
+        dt, dr, vec_d = 0.0, 0.0, np.zeros(3)
+    else:
+        vec_d = best.translation - calibrated.translation
+    return DriftReport(level, why, calibrated, best, float(dt), float(dr),
+                       tuple(float(v) for v in vec_d), float(start.loss), float(loss_best),
+                       float(start.coverage), counter.evaluations + 1, seconds,
+                       raw_vector=raw_vec, raw_gain=float(raw_gain))
+
+
+class DriftChecker:
+    """The drift watch of one camera: its map prepared once (around the calibration), a check per
+    label image. ``prepared`` shares a map already prepared with the same label mapping (several
+    cameras on one map)."""
+
+    def __init__(self, map_cloud: LabelledCloud, camera: CameraModel, calibrated: Pose,
+                 engine: CalibrationParams | None = None, drift: DriftParams | None = None,
+                 mapping: LabelMapping | None = None, prepared: PreparedMap | None = None
+                 ) -> None:
+        self.drift = drift or DriftParams()
+        self.params = check_params(engine or CalibrationParams(), self.drift)
+        self.mapping = mapping_for(self.params, mapping)
+        self.map_cloud, self.camera, self.calibrated = map_cloud, camera, calibrated
+        self.pmap = prepared if prepared is not None else prepare_map(
+            map_cloud, self.mapping, center=calibrated.translation,
+            radius=self.params.render.crop_radius or None)
+
+    def check(self, labels: np.ndarray | None, calibrated: Pose | None = None,
+              reference: DriftReport | None = None) -> DriftReport:
+        """Check ``calibrated`` (default: the one given at construction) against ``labels``
+        (mono8 Cityscapes trainIds; None: no image yet), counted from ``reference`` if given
+        (see :func:`check_drift`)."""
+        pose = calibrated or self.calibrated
+        t0 = time.perf_counter()
+        if labels is None:
+            return unknown(pose, "no label image yet")
+        try:
+            problem = Problem(self.map_cloud, labels, self.camera, pose.translation,
+                              self.params, prepared=self.pmap)
+        except ValueError as exc:
+            return unknown(pose, str(exc), t0)
+        report = check_drift(problem, pose, self.drift, reference)
+        return replace(report, seconds=time.perf_counter() - t0)
+
+
+__all__ = ["DIAGNOSTIC_LEVEL", "LEVELS", "DriftChecker", "DriftParams", "DriftReport",
+           "check_drift", "check_params"]

@@ -1,0 +1,237 @@
+"""Engine parameters: one dataclass tree, the ``engine:`` group of ``config/calibrator.yaml``.
+
+The calibrator node reads this tree under the ``engine.`` prefix (as the map builder reads its
+``mapping.`` group) and ``semcal calibrate --config`` / ``semcal evaluate --config`` read the same
+group from the same file (:meth:`CalibrationParams.from_file`), so one parameter file gives the
+same result through either door. Defaults reproduce the paper's search (+-2.5 m, +-5 deg, roll
+fixed, Nelder-Mead restarted with tolerances 1e-4, 1e-4, 1e-6, verification from perturbed starts)
+on a coarse-to-fine schedule; docs/engine.md says what each value buys, measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+from semcal_ros.engine.config import apply_flat, load_node_params
+from semcal_ros.engine.loss import LossParams
+from semcal_ros.engine.quality import QualityParams
+
+#: Beyond these the search is no calibration any more (the loss has no basin that wide).
+MAX_BOUND_XYZ_M = 50.0
+MAX_BOUND_DEG = 180.0
+
+
+@dataclass(frozen=True)
+class RenderParams:
+    splat_lambda: float = 0.0  # disc radius px = splat_lambda / distance m; 0 = from the map
+    splat_scale: float = 1.5  # with splat_lambda 0: disc radius = splat_scale x point spacing
+    radius_max: float = 8.0  # px, full resolution
+    depth_falloff: float = 0.3  # depth factor at a disc's rim: nearest centre wins within a surface
+    depth_falloff_coarse: float = 0.05  # the same for reduced-resolution stages (smoother basin)
+    core_fraction: float = 1.0  # share of the disc radius that carries the label (rim: depth only)
+    lod_radius: float = 0.75  # px: chunks whose discs are smaller are thinned (0: draw all points)
+    near: float = 0.5  # m
+    far: float = 150.0  # m
+    crop_radius: float = 120.0  # m around the crop centre (initial position); 0 keeps the whole map
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        for name in ("splat_lambda", "lod_radius", "crop_radius", "depth_falloff",
+                     "depth_falloff_coarse"):
+            _check(f"render.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
+        _check("render.splat_scale", self.splat_scale, self.splat_scale > 0, "> 0")
+        _check("render.radius_max", self.radius_max, self.radius_max >= 1, ">= 1 px")
+        _check("render.core_fraction", self.core_fraction, 0 < self.core_fraction <= 1,
+               "in (0, 1]")
+        _check("render.near", self.near, 0 < self.near < self.far, f"in (0, far = {self.far})")
+
+    def splat_lambda_for(self, point_spacing_m: float, focal_px: float) -> float:
+        """The disc size: given, or one that closes the gaps between neighbouring points.
+
+        The paper tuned lambda by eye until a rendered view looked as dense as the target; a
+        disc of ``splat_scale`` times the map's median nearest-neighbour gap does that for any
+        map and camera (lidar maps are anisotropic, so the gap between scan lines is larger than
+        that median); much larger discs overshoot outlines and bias the pose.
+        """
+        if self.splat_lambda > 0:
+            return self.splat_lambda
+        return self.splat_scale * focal_px * max(point_spacing_m, 1e-3)
+
+
+@dataclass(frozen=True)
+class LabelParams:
+    """Class alignment changes beyond the built-in SemanticKITTI -> Cityscapes table."""
+
+    merge: tuple[str, ...] = ()  # "from:to" Cityscapes class names merged in both domains
+    # (the paper on KITTI: ["sidewalk:road"])
+    parked_vehicles: bool = False  # vehicles count (parked cars in map and image); moving-* dropped
+
+    def __post_init__(self) -> None:
+        for item in self.merge:
+            if item.count(":") != 1 or not all(item.split(":")):
+                raise ValueError(f"labels.merge entries are 'from:to' class names, got '{item}'")
+
+    def as_dict(self) -> dict[str, str]:
+        return dict(item.split(":") for item in self.merge)
+
+
+@dataclass(frozen=True)
+class SearchParams:
+    bound_xyz: tuple[float, float, float] = (2.5, 2.5, 2.5)  # m
+    bound_roll_deg: float = 2.0  # only searched with free_roll
+    bound_pitch_deg: float = 5.0
+    bound_yaw_deg: float = 5.0
+    free_roll: bool = False
+    yaw_search: bool = False  # coarse grid over the full circle first (yaw not known at all)
+    yaw_search_step_deg: float = 10.0
+    yaw_search_keep: int = 3
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        if len(self.bound_xyz) != 3:
+            raise ValueError(f"search.bound_xyz needs 3 values, got {len(self.bound_xyz)}")
+        angles = (self.bound_pitch_deg, self.bound_yaw_deg) + \
+            ((self.bound_roll_deg,) if self.free_roll else ())
+        if min(*self.bound_xyz, *angles) <= 0:
+            raise ValueError("search bounds must be positive")
+        if max(self.bound_xyz) > MAX_BOUND_XYZ_M:
+            raise ValueError(f"search.bound_xyz {max(self.bound_xyz):g} m is beyond what the "
+                             f"method can search (at most {MAX_BOUND_XYZ_M:g} m): give a better "
+                             "initial position")
+        if max(angles) > MAX_BOUND_DEG:
+            raise ValueError(f"search angle bound {max(angles):g} deg is beyond "
+                             f"{MAX_BOUND_DEG:g} deg (use search.yaw_search for an unknown yaw)")
+        _check("search.yaw_search_step_deg", self.yaw_search_step_deg,
+               0 < self.yaw_search_step_deg <= 90, "in (0, 90]")
+        _check("search.yaw_search_keep", self.yaw_search_keep, self.yaw_search_keep >= 1, ">= 1")
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One Nelder-Mead stage of the schedule."""
+
+    scale: int  # image downscale factor (1 = full resolution)
+    simplex: float  # initial simplex, as a fraction of the search bounds
+    fatol: float  # loss change that ends the stage (the loss is a mean over valid pixels)
+    max_evaluations: int  # cap of the stage
+    restarts: int  # the stage again from its own result while that lowers the loss
+
+
+@dataclass(frozen=True)
+class ScheduleParams:
+    """Nelder-Mead stages, coarse to fine, one entry per stage in each list.
+
+    Kept as parallel lists because ROS parameters are flat typed arrays; the engine only ever
+    sees :meth:`stages`.
+    """
+
+    scales: tuple[int, ...] = (4, 2, 1)
+    simplex: tuple[float, ...] = (1.0, 0.1, 0.03)
+    fatol: tuple[float, ...] = (1e-4, 1e-4, 1e-6)  # the paper's tolerances
+    max_evaluations: tuple[int, ...] = (300, 150, 80)
+    # the paper's restarts from the previous result, per stage; the first stage's run only for
+    # the basins chosen for refinement (a coarse Nelder-Mead often stops before the bottom)
+    restarts: tuple[int, ...] = (1, 0, 1)
+    xatol: float = 1e-3  # in units of the bounds
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        n = len(self.scales)
+        if n == 0 or any(len(t) != n for t in (self.simplex, self.fatol, self.max_evaluations,
+                                                self.restarts)):
+            raise ValueError("schedule: scales, simplex, fatol, max_evaluations and restarts "
+                             "need one entry per stage each")
+        _check("schedule.scales", self.scales, min(self.scales) >= 1, ">= 1")
+        _check("schedule.simplex", self.simplex, min(self.simplex) > 0, "> 0")
+        _check("schedule.fatol", self.fatol, min(self.fatol) >= 0, ">= 0")
+        _check("schedule.max_evaluations", self.max_evaluations, min(self.max_evaluations) >= 1,
+               ">= 1")
+        _check("schedule.restarts", self.restarts, min(self.restarts) >= 0, ">= 0")
+        _check("schedule.xatol", self.xatol, self.xatol > 0, "> 0")
+        if self.scales[-1] != 1:
+            raise ValueError("schedule: the last stage must be at full resolution (scale 1)")
+
+    def stages(self) -> tuple[Stage, ...]:
+        return tuple(Stage(int(s), float(x), float(f), int(m), int(r)) for s, x, f, m, r in
+                     zip(self.scales, self.simplex, self.fatol, self.max_evaluations,
+                         self.restarts))
+
+
+@dataclass(frozen=True)
+class VerificationParams:
+    """The paper's verification: more starts around the initial guess; the lowest loss wins.
+
+    Every start runs the first (coarse) stage only; starts that end in the same place are merged,
+    and only the best and the distinct basins within ``refine_margin`` of its coarse loss are
+    refined at full resolution (at most ``refine_max``): full-resolution renders are spent only
+    where they can change the answer.
+    """
+
+    starts: int = 6  # extra starts besides the initial guess
+    noise: float = 1.0  # uniform noise of the starts, as a fraction of the search bounds
+    refine_margin: float = 0.2  # coarse loss <= best * (1 + margin): worth refining
+    refine_max: int = 3  # at most this many basins refined at full resolution
+    merge_translation_m: float = 0.3  # coarse results closer than this and
+    merge_rotation_deg: float = 0.3  # this are one basin
+    loss_margin: float = 0.05  # refined runs with loss <= best * (1 + margin) + abs agree
+    loss_margin_abs: float = 1e-4
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        for name in ("starts", "noise", "refine_margin", "merge_translation_m",
+                     "merge_rotation_deg", "loss_margin", "loss_margin_abs"):
+            _check(f"verification.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
+        _check("verification.refine_max", self.refine_max, self.refine_max >= 1, ">= 1")
+
+
+@dataclass(frozen=True)
+class CalibrationParams:
+    render: RenderParams = field(default_factory=RenderParams)
+    loss: LossParams = field(default_factory=LossParams)
+    labels: LabelParams = field(default_factory=LabelParams)
+    search: SearchParams = field(default_factory=SearchParams)
+    schedule: ScheduleParams = field(default_factory=ScheduleParams)
+    verification: VerificationParams = field(default_factory=VerificationParams)
+    quality: QualityParams = field(default_factory=QualityParams)
+
+    @classmethod
+    def from_file(cls, path: str | Path | None, node: str = "calibrator",
+                  base: "CalibrationParams | None" = None) -> "CalibrationParams":
+        """The ``engine:`` group of a ROS 2 parameter file (the calibrator node's own
+        parameters beside it are not the engine's and are skipped); an unknown name inside the
+        group is an error naming it, so a typo never passes silently."""
+        params = base or cls()
+        if path is None:
+            return params
+        prefix = "engine."
+        every = load_node_params(path, node)
+        groups = {f.name for f in fields(cls)}
+        stray = sorted({k.split(".", 1)[0] for k in every if k.split(".", 1)[0] in groups})
+        if stray:
+            raise ValueError(f"{path}: engine parameter group(s) {', '.join(stray)} must stand "
+                             "under 'engine:' (see config/calibrator.yaml)")
+        flat = {k[len(prefix):]: v for k, v in every.items() if k.startswith(prefix)}
+        try:
+            return apply_flat(params, flat, strict=True)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+
+def _check(name: str, value: object, ok: bool, rule: str) -> None:
+    """One parameter rule, its failure named: ``schedule.max_evaluations must be >= 1, got ...``"""
+    if not ok:
+        shown = list(value) if isinstance(value, tuple) else value
+        raise ValueError(f"{name} must be {rule}, got {shown}")
+
+
+def _finite(params: object) -> None:
+    """Every number of a parameter group is finite (NaN passes every < and > check)."""
+    import math
+
+    for name, value in vars(params).items():
+        values = value if isinstance(value, tuple) else (value,)
+        for v in values:
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"{type(params).__name__.replace('Params', '').lower()}."
+                                 f"{name} must be a finite number, got {v}")

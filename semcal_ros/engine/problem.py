@@ -1,0 +1,136 @@
+"""The registration problem: a labelled map, a camera and its label image, ready for many losses.
+
+A :class:`Problem` is what the search minimises and what everything that judges a pose asks: the
+optimiser, the evaluation protocol (one problem for all its starts), quality reports and drift
+checks. It prepares the map once (crop around an explicit centre, local origin, Morton chunks) and
+one view set-up and target per resolution level of the schedule; ``loss(pose, stage)`` is then one
+render and one table lookup per pixel.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import INVALID, LabelMapping
+from semcal_ros.engine.loss import LabelLoss
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.pose import Pose
+from semcal_ros.engine.render import PreparedMap, ViewSetup, prepare_map, view_setup
+from semcal_ros.engine.render.fast import render
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    loss: float
+    coverage: float  # share of the target's non-sky pixels that rendered map points cover
+
+
+@dataclass(frozen=True)
+class Level:
+    """One resolution: the view set-up and the loss against the downsampled target."""
+
+    scale: int
+    setup: ViewSetup
+    loss: LabelLoss
+
+
+def mapping_for(params: CalibrationParams, mapping: LabelMapping | None = None) -> LabelMapping:
+    """The label alignment: an explicit one (a YAML given by the user), else the built-in table
+    with ``params.labels.merge`` applied (what a parameter file can carry)."""
+    if mapping is None:
+        mapping = LabelMapping(merge=params.labels.as_dict())
+    elif params.labels.merge:
+        mapping = LabelMapping(mapping.alignment, mapping.dynamic,
+                               {**dict(mapping.merge), **params.labels.as_dict()})
+    return mapping.with_parked_vehicles() if params.labels.parked_vehicles else mapping
+
+
+class Problem:
+    """A map, a target label image and a camera made ready for many loss evaluations.
+
+    ``center`` is where the map is cropped (``params.render.crop_radius`` around it) and where
+    its local origin lies: the initial camera position for one calibration, any fixed point near
+    the camera when many starts share one problem. ``prepared`` is a map already prepared (by
+    :func:`~semcal_ros.engine.render.prepare_map` with the same label mapping) to share between problems
+    instead of preparing ``map_cloud`` again (which may then be None); ``center`` is then ignored.
+    """
+
+    def __init__(self, map_cloud: LabelledCloud | None, target: np.ndarray, camera: CameraModel,
+                 center: np.ndarray, params: CalibrationParams | None = None,
+                 mapping: LabelMapping | None = None, prepared: PreparedMap | None = None) -> None:
+        self.params = params or CalibrationParams()
+        self.mapping = mapping_for(self.params, mapping)
+        self.camera = camera
+        target = np.asarray(target)
+        if target.ndim != 2 or target.dtype != np.uint8:
+            raise ValueError(f"label image must be a single-channel uint8 image, got {target.dtype} "
+                             f"with shape {target.shape}")
+        if target.shape != (camera.height, camera.width):
+            raise ValueError(f"label image is {target.shape[1]}x{target.shape[0]} but camera_info "
+                             f"says {camera.width}x{camera.height}")
+        if prepared is None and map_cloud is None:
+            raise ValueError("a problem needs a map: a cloud or a prepared map")
+        if map_cloud is not None and prepared is None and len(map_cloud) and \
+                not np.all(np.isfinite(map_cloud.xyz)):
+            bad = int((~np.all(np.isfinite(map_cloud.xyz), axis=1)).sum())
+            raise ValueError(f"map contains {bad} NaN or infinite points")
+        center = np.asarray(center, dtype=float)
+        if center.shape != (3,) or not np.all(np.isfinite(center)):
+            raise ValueError(f"crop centre must be 3 finite numbers, got {center}")
+        rp = self.params.render
+        # a map prepared once serves every camera and goal on it (multi-camera calibrator, drift
+        # watch); it must have been prepared with this problem's label mapping
+        self.pmap: PreparedMap = prepared if prepared is not None else prepare_map(
+            map_cloud, self.mapping, center=center, radius=rp.crop_radius or None)
+        self.target = self.mapping.map_image(target)
+        if np.all(self.target == INVALID):
+            raise ValueError("label image has no pixel of a class the map can match")
+        self.stages = self.params.schedule.stages()
+        self._levels: dict[int, Level] = {}
+        for stage in self.stages:
+            if stage.scale not in self._levels:
+                self._levels[stage.scale] = self._level(stage.scale)
+
+    def _level(self, scale: int, setup: ViewSetup | None = None) -> Level:
+        """The loss against ``self.target`` at ``scale``; ``setup`` reuses a view set-up."""
+        setup = setup or view_setup(self.camera, self.pmap, self.params.render, scale)
+        cam = setup.camera
+        off = scale // 2  # the sample nearest the centre of each scale x scale block
+        target = self.target[off::scale, off::scale][:cam.height, :cam.width]
+        return Level(scale, setup, LabelLoss(np.ascontiguousarray(target), self.params.loss, scale))
+
+    def level(self, stage: int = -1) -> Level:
+        return self._levels[self.stages[stage].scale]
+
+    def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
+        """Aligned label image of the map from ``pose`` at the stage's resolution."""
+        lv = self.level(stage)
+        return render(self.pmap, lv.setup.view(pose))
+
+    def evaluate(self, pose: Pose, stage: int = -1) -> Evaluation:
+        loss, coverage = self.level(stage).loss.evaluate(self.render(pose, stage))
+        return Evaluation(float(loss), float(coverage))
+
+    def loss(self, pose: Pose, stage: int = -1) -> float:
+        """The paper's masked, normalised loss at ``pose`` (``stage`` -1: full resolution)."""
+        return self.level(stage).loss(self.render(pose, stage))
+
+    def masked(self, ignore: np.ndarray) -> "Problem":
+        """The same problem with the target's pixels where ``ignore`` is True left out of the loss
+        (set to INVALID): the prepared map and the view set-ups are shared, only the targets and
+        their loss tables are rebuilt."""
+        other = copy.copy(self)
+        other.target = np.where(ignore, INVALID, self.target).astype(np.uint8)
+        other._levels = {scale: other._level(scale, level.setup)
+                         for scale, level in self._levels.items()}
+        return other
+
+    def degenerate(self, evaluation: Evaluation) -> bool:
+        """True for a view that shows (almost) none of the map: never a result."""
+        lp = self.params.loss
+        return evaluation.loss >= lp.degenerate_loss or evaluation.coverage < lp.min_coverage

@@ -1,0 +1,244 @@
+"""How good is a calibration, without ground truth: the quality report and its verdict.
+
+The loss value means nothing to a user ("the cost is 0.98, what does it mean?"). What they can act
+on is whether the map, drawn at the result, agrees with what the camera sees; whether the answer is
+pinned down on every axis (a camera looking along a featureless road cannot tell where along the road
+it stands); and whether independent starts agreed. :func:`assess` measures these from the problem's
+public loss at a pose, so ``semcal calibrate``, the action and the drift watch share one report:
+
+* agreement: share of pixels where the map drew a point and the target has a class whose classes
+  agree, overall and per target class;
+* coverage: share of the target's scene pixels the map covers;
+* per-axis uncertainty: how far each of x, y, z (map frame) and roll, pitch, yaw (camera body) can
+  move from the result, alone, before the loss rises by ``rise`` (relative) + ``rise_abs``; the larger
+  of the two directions, capped at the search bound (a capped axis is unconstrained);
+* the verification runs: a distinct basin whose refined loss is as low as the result's means the
+  data cannot decide between two places.
+
+The verdict: ``failed`` when agreement is below ``min_agreement`` or runs disagree; else
+``inconclusive`` when the coverage is below ``min_coverage`` or an axis's uncertainty exceeds
+``max_translation_m`` / ``max_rotation_deg`` (the reason names the axis); else ``good``. The
+thresholds and how they were chosen on scenes are in docs/quality.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import numpy as np
+
+from semcal_ros.engine.labels import CITYSCAPES, INVALID, SKY
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
+
+if TYPE_CHECKING:  # pragma: no cover
+    from semcal_ros.engine.search import RunResult
+    from semcal_ros.engine.problem import Problem
+
+AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+VERDICTS = ("good", "inconclusive", "failed")
+
+
+@dataclass(frozen=True)
+class QualityParams:
+    """Thresholds of the verdict (``engine.quality.*``); docs/quality.md says how each was chosen."""
+
+    rise: float = 0.10  # relative loss rise that bounds an axis's uncertainty
+    rise_abs: float = 1e-4  # plus this absolute rise (a loss near 0 still has a noise floor)
+    step_m: float = 0.01  # first probe along a translation axis; doubled until the loss rises
+    step_deg: float = 0.02  # first probe about a rotation axis
+    bisections: int = 2  # refinements of each axis's bracket
+    stage: int = -1  # schedule stage whose resolution the probes use (-1: full resolution)
+    max_translation_m: float = 0.10  # an axis looser than this is unconstrained: inconclusive
+    max_rotation_deg: float = 0.2
+    min_agreement: float = 0.6  # below: failed (the map is not what the camera sees)
+    min_coverage: float = 0.15  # below: inconclusive (too little of the image to judge)
+    disagree_translation_m: float = 0.3  # a rival basin this far away with a loss as low: failed
+    disagree_rotation_deg: float = 0.3
+    rival_margin: float = 0.02  # "as low": refined loss <= result's * (1 + margin)
+
+    def __post_init__(self) -> None:
+        for name in ("rise", "rise_abs", "min_agreement", "min_coverage", "rival_margin"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"quality.{name} must be a finite number >= 0, got {value}")
+        for name in ("step_m", "step_deg", "max_translation_m", "max_rotation_deg",
+                     "disagree_translation_m", "disagree_rotation_deg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"quality.{name} must be a finite number > 0, got {value}")
+        if self.bisections < 0:
+            raise ValueError(f"quality.bisections must be >= 0, got {self.bisections}")
+        if not (self.min_agreement <= 1 and self.min_coverage <= 1):
+            raise ValueError("quality.min_agreement and quality.min_coverage are shares in [0, 1]")
+
+
+@dataclass(frozen=True)
+class QualityReport:
+    verdict: str  # "good" | "inconclusive" | "failed"
+    reason: str  # one line: why (names the axis or the measure at fault)
+    agreement: float
+    agreement_per_class: dict[str, float]
+    coverage: float
+    uncertainty_translation_m: tuple[float, float, float]  # map x, y, z
+    uncertainty_rpy_deg: tuple[float, float, float]  # camera body roll, pitch, yaw
+    unconstrained: tuple[str, ...] = ()  # axes whose uncertainty is above the thresholds
+    spread_translation_m: float = 0.0
+    spread_rotation_deg: float = 0.0
+    evaluations: int = 0  # loss evaluations the report cost
+    roll_free: bool = False  # roll searched (else held fixed, and its uncertainty not judged)
+
+    def to_dict(self) -> dict:
+        """The ``quality:`` group of a result YAML."""
+        return {
+            "verdict": self.verdict,
+            "reason": self.reason,
+            "agreement": round(float(self.agreement), 4),
+            "agreement_per_class": {k: round(float(v), 4)
+                                    for k, v in self.agreement_per_class.items()},
+            "coverage": round(float(self.coverage), 4),
+            "uncertainty_translation_m": [round(float(v), 4)
+                                          for v in self.uncertainty_translation_m],
+            "uncertainty_rpy_deg": [round(float(v), 4) for v in self.uncertainty_rpy_deg],
+            "unconstrained": list(self.unconstrained),
+            "spread_translation_m": round(float(self.spread_translation_m), 4),
+            "spread_rotation_deg": round(float(self.spread_rotation_deg), 4),
+        }
+
+    def summary(self) -> str:
+        """One line for logs and the overlay."""
+        ut = self.uncertainty_translation_m
+        ur = self.uncertainty_rpy_deg if self.roll_free else self.uncertainty_rpy_deg[1:]
+        return (f"{self.verdict.upper()}: {self.reason}; agreement {self.agreement * 100:.0f} %, "
+                f"coverage {self.coverage * 100:.0f} %, +- {max(ut) * 100:.1f} cm / "
+                f"{max(ur):.2f} deg")
+
+
+def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 0.0
+                    ) -> tuple[float, dict[str, float]]:
+    """Share of pixels where the map drew a point and the target has a class whose classes agree,
+    and the same per target class (by Cityscapes name). Both images hold aligned classes."""
+    top = int(round(crop_top * target.shape[0]))
+    r = rendered[top:].ravel()
+    t = target[top:].ravel()
+    both = (r != INVALID) & (t != INVALID)
+    if not both.any():
+        return 0.0, {}
+    r, t = r[both], t[both]
+    same = r == t
+    total = np.bincount(t, minlength=256)
+    hits = np.bincount(t[same], minlength=256)
+    # per class of the labels; not sky: the map has no sky to draw, so it could only disagree
+    per_class = {CITYSCAPES.get(int(c), str(int(c))): float(hits[c] / total[c])
+                 for c in np.nonzero(total)[0] if c != SKY}
+    return float(same.mean()), per_class
+
+
+def axis_uncertainty(problem: "Problem", pose: Pose, params: QualityParams,
+                     bounds: Sequence[float], on_probe: Callable[[], None] | None = None,
+                     loss0: float | None = None) -> tuple[np.ndarray, int]:
+    """Per axis (x, y, z in m; roll, pitch, yaw in deg): how far the pose can move along it, in
+    either direction, before the loss at ``params.stage`` rises by the set amount. Probes double
+    from ``step`` until the loss rises or the bound is passed, then bisect the bracket; the larger
+    direction counts. Returns the six values and the evaluations spent. ``on_probe`` is called
+    before every probe (the search's cancellation check raises from it); ``loss0``, the loss at
+    ``pose`` at the probes' stage, when the caller has it already."""
+    base = pose.vector()
+    spent = 0
+    if loss0 is None:
+        loss0, spent = problem.loss(pose, params.stage), 1
+    limit = loss0 * (1.0 + params.rise) + params.rise_abs
+    out = np.zeros(6)
+    for axis in range(6):
+        rotation = axis >= 3
+        step = math.radians(params.step_deg) if rotation else params.step_m
+        bound = math.radians(bounds[axis]) if rotation else bounds[axis]
+        worst = 0.0
+        for sign in (1.0, -1.0):
+            def rises(d: float) -> bool:
+                if on_probe is not None:
+                    on_probe()
+                v = base.copy()
+                v[axis] += sign * d
+                return problem.loss(Pose.from_vector(v), params.stage) > limit
+
+            inside, d = 0.0, step
+            while d < bound:
+                spent += 1
+                if rises(d):
+                    break
+                inside, d = d, d * 2.0
+            else:
+                worst = bound
+                break
+            lo, hi = inside, d
+            for _ in range(params.bisections):
+                mid = 0.5 * (lo + hi)
+                spent += 1
+                if rises(mid):
+                    hi = mid
+                else:
+                    lo = mid
+            worst = max(worst, hi)
+        out[axis] = math.degrees(worst) if rotation else worst
+    return out, spent
+
+
+def assess(problem: "Problem", pose: Pose, runs: Sequence["RunResult"] = (),
+           params: QualityParams | None = None,
+           on_probe: Callable[[], None] | None = None) -> QualityReport:
+    """The quality report of ``pose`` on ``problem`` (see the module docstring). ``runs`` are the
+    verification runs of the calibration (empty for a pose from elsewhere, e.g. a drift check)."""
+    qp = params or problem.params.quality
+    sp = problem.params.search
+    rendered = problem.render(pose)  # one full-resolution render serves agreement and loss
+    agreement, per_class = label_agreement(rendered, problem.target,
+                                           problem.params.loss.crop_top)
+    loss_full, coverage = problem.level(-1).loss.evaluate(rendered)
+    at_full = problem.stages[qp.stage].scale == problem.stages[-1].scale
+    bounds = (*sp.bound_xyz, sp.bound_roll_deg, sp.bound_pitch_deg, sp.bound_yaw_deg)
+    unc, spent = axis_uncertainty(problem, pose, qp, bounds, on_probe,
+                                  loss_full if at_full else None)
+    loose = tuple(AXES[i] for i in range(6)
+                  if unc[i] > (qp.max_translation_m if i < 3 else qp.max_rotation_deg))
+    if not sp.free_roll:
+        loose = tuple(a for a in loose if a != "roll")  # held fixed: not the search's to pin down
+    # verification runs: spread of the agreeing ones, rivals among the refined others
+    best = [r for r in runs if r.basin == 0]
+    dt = [translation_error(r.pose, pose) for r in best]
+    dr = [rotation_error_deg(r.pose, pose) for r in best]
+    loss_best = min((r.loss for r in runs if r.refined), default=math.inf)
+    rivals = [r for r in runs if r.refined and r.basin != 0
+              and r.loss <= loss_best * (1.0 + qp.rival_margin)
+              and (translation_error(r.pose, pose) > qp.disagree_translation_m
+                   or rotation_error_deg(r.pose, pose) > qp.disagree_rotation_deg)]
+    if agreement < qp.min_agreement:
+        verdict, reason = "failed", (f"labels agree on {agreement * 100:.0f} % of the pixels "
+                                     f"(< {qp.min_agreement * 100:.0f} %): the map is not what "
+                                     "the camera sees from here")
+    elif rivals:
+        r = min(rivals, key=lambda run: run.loss)
+        verdict, reason = "failed", (
+            f"runs disagree: a start ended {translation_error(r.pose, pose):.2f} m / "
+            f"{rotation_error_deg(r.pose, pose):.2f} deg away with a loss as low")
+    elif coverage < qp.min_coverage:
+        verdict, reason = "inconclusive", (f"the map covers {coverage * 100:.0f} % of the image "
+                                           f"(< {qp.min_coverage * 100:.0f} %)")
+    elif loose:
+        parts = [f"{a} +-{unc[AXES.index(a)] * (100 if AXES.index(a) < 3 else 1):.3g} "
+                 f"{'cm' if AXES.index(a) < 3 else 'deg'}" for a in loose]
+        verdict, reason = "inconclusive", "unconstrained: " + ", ".join(parts)
+    else:
+        verdict, reason = "good", "every axis pinned down, labels agree"
+    return QualityReport(
+        verdict=verdict, reason=reason, agreement=agreement, agreement_per_class=per_class,
+        coverage=coverage, uncertainty_translation_m=tuple(float(v) for v in unc[:3]),
+        uncertainty_rpy_deg=tuple(float(v) for v in unc[3:]), unconstrained=loose,
+        spread_translation_m=float(np.sqrt(np.mean(np.square(dt)))) if dt else 0.0,
+        spread_rotation_deg=float(np.sqrt(np.mean(np.square(dr)))) if dr else 0.0,
+        evaluations=spent + 1, roll_free=sp.free_roll)
+
+
+__all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
+           "label_agreement"]

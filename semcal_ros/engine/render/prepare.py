@@ -1,0 +1,117 @@
+"""The map made ready once per calibration: the renderer's hot loop then only streams arrays.
+
+Coordinates move to a local origin before the float32 cast (georeferenced coordinates in float32
+lose centimetres). Points are sorted along a Morton curve and cut into fixed-size chunks with
+bounding boxes, so the fast renderer can skip whole chunks outside the view and touches the z-buffer
+with good locality.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import INVALID, LabelMapping
+
+CHUNK = 1024
+
+
+@dataclass(frozen=True)
+class PreparedMap:
+    origin: np.ndarray  # (3,) float64, added back to get map coordinates
+    xyz: np.ndarray  # (N, 3) float32, local coordinates, Morton order
+    label: np.ndarray  # (N,) uint8 aligned classes (no INVALID)
+    chunk_center: np.ndarray  # (C, 3) float64 bounding-sphere centres
+    chunk_radius: np.ndarray  # (C,) float64 bounding-sphere radii
+
+    def __len__(self) -> int:
+        return len(self.label)
+
+    @cached_property
+    def spacing(self) -> float:
+        """Median distance from a point to its nearest neighbour (m): what the splat size
+        follows. Computed once per map, from up to 32 blocks of 2048 consecutive points: in
+        Morton order a block is a compact piece of the map, so nearest neighbours are found
+        inside it at a fraction of the cost of a tree over millions of points (4 ms instead of
+        1.5 s on a 2.5 M-point map, within 1 % of the full search)."""
+        from scipy.spatial import cKDTree
+
+        n = len(self)
+        if n < 2:
+            return 0.0
+        block = min(2048, n)
+        starts = np.unique(np.linspace(0, n - block, min(32, max(1, n // block))).astype(int))
+        gaps = []
+        for s in starts:
+            pts = self.xyz[s:s + block]
+            dist, _ = cKDTree(pts).query(pts, k=2)
+            gaps.append(dist[:, 1])
+        return float(np.median(np.concatenate(gaps)))
+
+
+def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
+                center: np.ndarray | None = None, radius: float | None = None) -> PreparedMap:
+    """Drop dynamic/unmapped classes and non-finite points, crop, shift, sort, chunk."""
+    if cloud.label is None:
+        raise ValueError("map has no labels")
+    mapping = mapping or LabelMapping()
+    aligned = mapping.map_lidar(cloud.label)
+    keep = (aligned != INVALID) & np.all(np.isfinite(cloud.xyz), axis=1)
+    xyz = np.asarray(cloud.xyz, dtype=np.float64)[keep]
+    aligned = aligned[keep]
+    origin = np.asarray(center, dtype=np.float64) if center is not None else (
+        xyz.mean(axis=0) if len(xyz) else np.zeros(3))
+    if radius is not None and len(xyz):
+        d2 = np.einsum("ij,ij->i", xyz - origin, xyz - origin)
+        near = d2 <= radius * radius
+        if not near.any():
+            raise ValueError(
+                f"the initial position is {np.sqrt(d2.min()):.0f} m from the nearest map point "
+                f"(the map is used within {radius:g} m of it): check the initial pose and its "
+                "frame")
+        xyz, aligned = xyz[near], aligned[near]
+    if len(xyz) == 0:
+        raise ValueError("map has no static labelled points (after removing dynamic classes"
+                         + (f" and cropping to {radius:g} m" if radius is not None else "") + ")")
+    local = (xyz - origin).astype(np.float32)
+    order = np.argsort(_morton_codes(local), kind="stable")
+    return _with_chunks(origin, local[order], aligned[order])
+
+
+def _with_chunks(origin: np.ndarray, xyz: np.ndarray, label: np.ndarray) -> PreparedMap:
+    xyz = np.ascontiguousarray(xyz, dtype=np.float32)
+    n = len(xyz)
+    n_chunks = (n + CHUNK - 1) // CHUNK
+    pad = n_chunks * CHUNK - n
+    padded = np.concatenate([xyz, np.repeat(xyz[-1:], pad, axis=0)]) if pad else xyz
+    blocks = padded.reshape(n_chunks, CHUNK, 3).astype(np.float64)
+    lo, hi = blocks.min(axis=1), blocks.max(axis=1)
+    center = 0.5 * (lo + hi)
+    radius = 0.5 * np.linalg.norm(hi - lo, axis=1)
+    return PreparedMap(np.asarray(origin, np.float64), xyz,
+                       np.ascontiguousarray(label, dtype=np.uint8), center, radius)
+
+
+def _morton_codes(xyz: np.ndarray) -> np.ndarray:
+    """63-bit Morton codes of points quantised to 21 bits per axis over their bounding box."""
+    lo = xyz.min(axis=0)
+    span = np.maximum(xyz.max(axis=0) - lo, 1e-9)
+    q = ((xyz - lo) / span * (2**21 - 1)).astype(np.uint64)
+    code = np.zeros(len(xyz), dtype=np.uint64)
+    for axis in range(3):
+        code |= _spread_bits(q[:, axis]) << np.uint64(axis)
+    return code
+
+
+def _spread_bits(v: np.ndarray) -> np.ndarray:
+    """Insert two zero bits between each of the lower 21 bits."""
+    v = v & np.uint64(0x1FFFFF)
+    v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
+    return v

@@ -1,0 +1,348 @@
+"""The search: Nelder-Mead over the camera pose, coarse to fine, from several starts.
+
+``calibrate`` is the paper's whole procedure in one call: the map is prepared once (a
+:class:`~semcal_ros.engine.problem.Problem`), then :func:`solve` runs
+
+1. the first, coarse stage (quarter resolution, thinned far points) from the initial guess and from
+   ``verification.starts`` perturbed guesses (the paper's verification runs);
+2. merges starts that ended in the same place (one basin) and ranks the basins by coarse loss;
+3. refines the best basin, and any distinct basin whose coarse loss is within
+   ``verification.refine_margin`` of it, through the finer stages and the paper's restarts of the
+   last stage (at most ``refine_max``);
+4. returns the refined pose of lowest full-resolution loss, with how many starts agreed on it.
+
+Full-resolution renders cost ten times a coarse one, so they are spent only where they can change
+the answer; docs/engine.md has the measurements behind each choice.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import minimize
+
+from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.labels import LabelMapping
+from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
+from semcal_ros.engine.problem import Problem
+from semcal_ros.engine.quality import QualityReport, assess
+
+
+class Cancelled(Exception):
+    """Raised inside ``calibrate`` when ``should_stop()`` returned True."""
+
+
+@dataclass(frozen=True)
+class Progress:
+    stage: str
+    evaluations: int
+    best_loss: float  # best of the running stage (losses of different resolutions differ)
+    best_pose: Pose
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One start: where its coarse stage ended, and the full schedule's result if refined."""
+
+    start: Pose
+    pose: Pose  # refined pose, or the coarse one when the start was not refined
+    loss: float  # full-resolution loss when refined, else the coarse loss
+    evaluations: int
+    coarse_loss: float
+    refined: bool
+    basin: int  # index of the basin (0 = the one of the result)
+
+
+@dataclass
+class CalibrationResult:
+    pose: Pose
+    loss: float
+    evaluations: int
+    seconds: float
+    history: list[tuple[int, int, float]] = field(default_factory=list)  # (run, stage, loss)
+    runs: list[RunResult] = field(default_factory=list)
+    accepted: int = 1  # starts that ended in the result's basin
+    spread_translation_m: float = 0.0  # RMS distance of those starts' poses from the result
+    spread_rotation_deg: float = 0.0
+    coverage: float = 0.0  # share of the target's non-sky pixels the map covers at the result
+    quality: QualityReport | None = None  # how good, without ground truth (semcal_ros.engine.quality)
+
+    def to_dict(self) -> dict:
+        """The fields a result pose YAML adds to the pose itself."""
+        return {
+            "loss": float(self.loss),
+            "evaluations": int(self.evaluations),
+            "seconds": round(float(self.seconds), 3),
+            "rpy_deg": [float(v) for v in self.pose.body_rpy_deg()],
+            "coverage": round(float(self.coverage), 4),
+            "verification": {
+                "runs": len(self.runs),
+                "refined": sum(r.refined for r in self.runs),
+                "accepted": int(self.accepted),
+                "spread_translation_m": float(self.spread_translation_m),
+                "spread_rotation_deg": float(self.spread_rotation_deg),
+            },
+            **({"quality": self.quality.to_dict()} if self.quality is not None else {}),
+        }
+
+
+class _Counter:
+    """Counts evaluations, records history, reports progress, honours cancellation."""
+
+    def __init__(self, progress: Callable[[Progress], None] | None,
+                 should_stop: Callable[[], bool] | None, interval: float = 0.25) -> None:
+        self.progress, self.should_stop, self.interval = progress, should_stop, interval
+        self.evaluations = 0
+        self.history: list[tuple[int, int, float]] = []
+        self.stage = "start"
+        self._best: tuple[float, Pose] | None = None
+        self._last_report = 0.0
+
+    def check(self) -> None:
+        """Raise :class:`Cancelled` when the caller asked to stop."""
+        if self.should_stop is not None and self.should_stop():
+            raise Cancelled("calibration cancelled")
+
+    def begin_stage(self, name: str) -> None:
+        self.stage, self._best = name, None
+
+    def record(self, run: int, stage: int, loss: float, pose: Pose) -> None:
+        self.check()
+        self.evaluations += 1
+        self.history.append((run, stage, loss))
+        if self._best is None or loss < self._best[0]:
+            self._best = (loss, pose)
+        now = time.monotonic()
+        if now - self._last_report >= self.interval:
+            self._last_report = now
+            self.report()
+
+    def report(self) -> None:
+        if self.progress is not None and self._best is not None:
+            self.progress(Progress(self.stage, self.evaluations, float(self._best[0]),
+                                   self._best[1]))
+
+
+class Search:
+    """Nelder-Mead on one problem, in units of the search bounds around a centre pose."""
+
+    def __init__(self, problem: Problem, counter: _Counter) -> None:
+        self.problem, self.counter = problem, counter
+        sp = problem.params.search
+        # free parameters (x, y, z, [roll], pitch, yaw) and their search bounds
+        self.free = np.array([0, 1, 2] + ([3] if sp.free_roll else []) + [4, 5])
+        bounds = np.array([*sp.bound_xyz, np.radians(sp.bound_roll_deg),
+                           np.radians(sp.bound_pitch_deg), np.radians(sp.bound_yaw_deg)])
+        self.scale = bounds[self.free]
+
+    def pose_at(self, center: np.ndarray, s: np.ndarray) -> Pose:
+        v = np.array(center, dtype=float)
+        v[self.free] += self.scale * s
+        return Pose.from_vector(v)
+
+    def nelder_mead(self, stage: int, center: np.ndarray, run: int) -> tuple[np.ndarray, float]:
+        """One Nelder-Mead search of ``stage`` around ``center``: the best pose it evaluated
+        (not its last simplex vertex) and that pose's loss."""
+        st = self.problem.stages[stage]
+        best: list = [np.inf, center]
+
+        def objective(s: np.ndarray) -> float:
+            pose = self.pose_at(center, s)
+            value = self.problem.loss(pose, stage)
+            self.counter.record(run, stage, value, pose)
+            if value < best[0]:
+                best[0], best[1] = value, pose.vector()
+            return value
+
+        n = len(self.free)
+        minimize(objective, np.zeros(n), method="Nelder-Mead",
+                 options={"initial_simplex": _initial_simplex(n) * st.simplex,
+                          "xatol": self.problem.params.schedule.xatol, "fatol": st.fatol,
+                          "maxfev": st.max_evaluations})
+        return best[1], float(best[0])
+
+    def coarse(self, start: Pose, run: int, label: str) -> tuple[np.ndarray, float]:
+        self.counter.begin_stage(f"{label}, stage 1/{len(self.problem.stages)} "
+                                 f"(1/{self.problem.stages[0].scale} resolution)")
+        return self.nelder_mead(0, start.vector(), run)
+
+    def restart(self, stage: int, center: np.ndarray, loss: float, run: int, label: str
+                ) -> tuple[np.ndarray, float]:
+        """The paper's restarts: ``stage`` again from its own result while that still lowers
+        the loss by more than the stage's tolerance."""
+        st = self.problem.stages[stage]
+        for r in range(st.restarts):
+            self.counter.begin_stage(f"{label}, stage {stage + 1}/{len(self.problem.stages)}, "
+                                     f"restart {r + 1}")
+            moved, after = self.nelder_mead(stage, center, run)
+            improved = loss - after
+            if after < loss:
+                center, loss = moved, after
+            if improved <= st.fatol:
+                break
+        return center, loss
+
+    def refine(self, center: np.ndarray, loss: float, run: int, label: str,
+               restart_first: bool = True) -> tuple[np.ndarray, float]:
+        """From a coarse result: the first stage's restarts (unless ``restart_first`` is False),
+        then every later stage and its restarts."""
+        stages = self.problem.stages
+        if restart_first:
+            center, loss = self.restart(0, center, loss, run, label)
+        for k in range(1, len(stages)):
+            self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
+                                     f"(1/{stages[k].scale} resolution)")
+            center, loss = self.nelder_mead(k, center, run)
+            center, loss = self.restart(k, center, loss, run, label)
+        return center, loss
+
+
+def _initial_simplex(n: int) -> np.ndarray:
+    """n+1 vertices centred on the origin reaching +1 in every coordinate: the paper builds the
+    simplex by adding and subtracting the full parameter range around the initial guess."""
+    vertices = np.vstack([np.zeros(n), np.eye(n)])
+    vertices -= vertices.mean(axis=0)
+    return vertices / vertices.max(axis=0)
+
+
+def _yaw_candidates(search: Search, initial: Pose) -> list[Pose]:
+    sp = search.problem.params.search
+    v = initial.vector()
+    scored = []
+    search.counter.begin_stage("yaw grid search")
+    for yaw in np.arange(-180.0, 180.0, sp.yaw_search_step_deg):
+        cand = v.copy()
+        cand[5] = v[5] + np.radians(yaw)
+        pose = Pose.from_vector(cand)
+        value = search.problem.loss(pose, 0)
+        search.counter.record(-1, 0, value, pose)
+        scored.append((value, yaw, pose))
+    scored.sort(key=lambda item: item[0])
+    return [pose for _, _, pose in scored[: sp.yaw_search_keep]]
+
+
+def _basins(poses: list[Pose], losses: list[float], tol_m: float, tol_deg: float
+            ) -> tuple[list[int], list[int]]:
+    """Basin index per start, and the start that heads each basin: greedily, in order of loss,
+    a start joins the first better head within (``tol_m``, ``tol_deg``), else heads a basin of
+    its own. Basins are numbered in order of their heads' losses."""
+    order = np.argsort(losses, kind="stable")
+    basin = [-1] * len(poses)
+    heads: list[int] = []
+    for i in order:
+        for b, h in enumerate(heads):
+            if translation_error(poses[i], poses[h]) <= tol_m and \
+                    rotation_error_deg(poses[i], poses[h]) <= tol_deg:
+                basin[i] = b
+                break
+        else:
+            basin[i] = len(heads)
+            heads.append(int(i))
+    return basin, heads
+
+
+def _without_label_outliers(problem: Problem, search: Search, pose: Pose, loss: float, run: int
+                            ) -> tuple[Pose, float]:
+    """Leave out the regions the result says are label errors (``loss.outlier_width_px``) and
+    refine again from the result at the finer stages; keeps the first result when nothing is
+    left out. The loss returned is the full problem's at the new pose (comparable with the
+    runs' losses)."""
+    from semcal_ros.engine.loss import label_outliers
+
+    ignore = label_outliers(problem.render(pose), problem.target,
+                            problem.params.loss.outlier_width_px)
+    if not ignore.any():
+        return pose, loss
+    center, _ = Search(problem.masked(ignore), search.counter).refine(
+        pose.vector(), loss, run, f"without label errors ({ignore.mean() * 100:.1f} % of the "
+        "image)", restart_first=False)
+    new = Pose.from_vector(center)
+    return new, problem.loss(new)
+
+
+def solve(problem: Problem, initial: Pose, seed: int | None = None,
+          progress: Callable[[Progress], None] | None = None,
+          should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
+    """The full procedure on a prepared problem (see the module docstring)."""
+    t0 = time.perf_counter()
+    params = problem.params
+    counter = _Counter(progress, should_stop)
+    search = Search(problem, counter)
+    if not params.search.yaw_search and \
+            problem.evaluate(initial, 0).coverage < params.loss.min_coverage:
+        raise ValueError("no map point in view at the initial pose (check the initial pose, "
+                         "its frame and the map)")
+    vp = params.verification
+    starts = _yaw_candidates(search, initial) if params.search.yaw_search else [initial]
+    rng = np.random.default_rng(seed)
+    for _ in range(vp.starts):
+        starts.append(search.pose_at(starts[0].vector(),
+                                     rng.uniform(-1.0, 1.0, len(search.free)) * vp.noise))
+    n = len(starts)
+    coarse = []
+    for i, start in enumerate(starts):
+        label = "initial guess" if i == 0 else f"start {i + 1}/{n}"
+        e0 = counter.evaluations
+        vec, loss = search.coarse(start, i, label)
+        coarse.append((Pose.from_vector(vec), loss, counter.evaluations - e0))
+    basin, heads = _basins([c[0] for c in coarse], [c[1] for c in coarse],
+                           vp.merge_translation_m, vp.merge_rotation_deg)
+    limit = coarse[heads[0]][1] * (1.0 + vp.refine_margin) + vp.loss_margin_abs
+    chosen = [i for i in heads if coarse[i][1] <= limit][: vp.refine_max]
+    refined: dict[int, tuple[Pose, float, int]] = {}
+    for j, i in enumerate(chosen):
+        e0 = counter.evaluations
+        vec, loss = search.refine(coarse[i][0].vector(), coarse[i][1], i,
+                                  f"refining basin {j + 1}/{len(chosen)}")
+        refined[i] = (Pose.from_vector(vec), loss, counter.evaluations - e0)
+    counter.report()
+    win = min(refined, key=lambda i: refined[i][1])
+    best_pose, best_loss = refined[win][0], refined[win][1]
+    if params.loss.outlier_width_px > 0:
+        best_pose, best_loss = _without_label_outliers(problem, search, best_pose, best_loss, win)
+    final = problem.evaluate(best_pose)
+    if problem.degenerate(final):
+        raise ValueError(
+            f"calibration failed: at the best pose found the map covers "
+            f"{final.coverage * 100:.1f} % of the labelled image (loss {final.loss:.4g}); "
+            "the initial pose is probably far from the truth, or the map is not of this camera's "
+            "view")
+    # renumber the basins so the result's is 0, the others in order of coarse loss
+    order = {b: k for k, b in enumerate(
+        [basin[win]] + [b for b in range(len(heads)) if b != basin[win]])}
+    runs = []
+    for i, start in enumerate(starts):
+        pose, loss, evals = refined[i] if i in refined else coarse[i]
+        extra = coarse[i][2] if i in refined else 0
+        runs.append(RunResult(start, pose, float(loss), int(evals + extra), float(coarse[i][1]),
+                              i in refined, order[basin[i]]))
+    agree = [r for r in runs if r.basin == 0]
+    dt = np.array([translation_error(r.pose, best_pose) for r in agree])
+    dr = np.array([rotation_error_deg(r.pose, best_pose) for r in agree])
+    counter.begin_stage("quality report")
+    quality = assess(problem, best_pose, runs, on_probe=counter.check)
+    return CalibrationResult(
+        pose=best_pose, loss=float(best_loss), evaluations=counter.evaluations + quality.evaluations,
+        seconds=time.perf_counter() - t0, history=counter.history, runs=runs,
+        accepted=len(agree), spread_translation_m=float(np.sqrt(np.mean(dt**2))),
+        spread_rotation_deg=float(np.sqrt(np.mean(dr**2))), coverage=final.coverage,
+        quality=quality,
+    )
+
+
+def calibrate(map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel, initial: Pose,
+              params: CalibrationParams | None = None, mapping: LabelMapping | None = None,
+              seed: int | None = None, progress: Callable[[Progress], None] | None = None,
+              should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
+    """Find the camera pose in the map frame (see the module docstring). The map is cropped
+    around the initial position; preparing it is counted in the result's seconds."""
+    t0 = time.perf_counter()
+    problem = Problem(map_cloud, target, camera, initial.translation, params, mapping)
+    result = solve(problem, initial, seed, progress, should_stop)
+    result.seconds = time.perf_counter() - t0
+    return result
