@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
-from semcal_ros.engine.params import RenderParams
+from semcal_ros.engine.render.view import RenderParams
 from semcal_ros.engine.render import fast, prepare_map, reference, view_for
 from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world_of_size
 

@@ -17,7 +17,8 @@ import numpy as np
 
 from semcal_ros.engine.loss import LabelLoss, LossParams, loss_reference
 from semcal_ros.engine.search import calibrate
-from semcal_ros.engine.params import CalibrationParams, RenderParams, VerificationParams
+from semcal_ros.engine.params import CalibrationParams, VerificationParams
+from semcal_ros.engine.render.view import RenderParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.render import fast, prepare_map, reference, view_for
 from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world_of_size, target_image

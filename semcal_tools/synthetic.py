@@ -14,7 +14,7 @@ import numpy as np
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import KITTI_ID, SKY
-from semcal_ros.engine.params import RenderParams
+from semcal_ros.engine.render.view import RenderParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render import prepare_map, view_for
 from semcal_ros.engine.render.reference import render

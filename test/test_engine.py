@@ -149,13 +149,13 @@ def test_degenerate_result_is_an_error_not_a_result(world, target):
 
 
 def test_yaw_grid_finds_an_unknown_yaw(world, target):
-    from semcal_ros.engine.search import Search, _Counter, _yaw_candidates
+    from semcal_ros.engine.search import EvaluationCounter, Search, _yaw_candidates
 
     lost = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.5, -0.5, 0.3],
                                   GROUND_TRUTH.body_rpy_deg() + [0.0, 2.0, 97.0])
     params = CalibrationParams(search=SearchParams(yaw_search=True, yaw_search_keep=3))
     search = Search(Problem(world, target, camera(), lost.translation, params),
-                    _Counter(None, None))
+                    EvaluationCounter(None, None))
     candidates = _yaw_candidates(search, lost)
     yaw_errors = [abs((c.body_rpy_deg()[2] - GROUND_TRUTH.body_rpy_deg()[2] + 180) % 360 - 180)
                   for c in candidates]
@@ -163,12 +163,12 @@ def test_yaw_grid_finds_an_unknown_yaw(world, target):
 
 
 def test_free_roll_adds_a_parameter(problem, world, target):
-    from semcal_ros.engine.search import Search, _Counter
+    from semcal_ros.engine.search import EvaluationCounter, Search
 
-    fixed = Search(problem, _Counter(None, None))
+    fixed = Search(problem, EvaluationCounter(None, None))
     free = Search(Problem(world, target, camera(), INITIAL.translation,
                           CalibrationParams(search=SearchParams(free_roll=True))),
-                  _Counter(None, None))
+                  EvaluationCounter(None, None))
     assert list(fixed.free) == [0, 1, 2, 4, 5]
     assert list(free.free) == [0, 1, 2, 3, 4, 5]
     moved = free.pose_at(INITIAL.vector(), np.array([0, 0, 0, 1.0, 0, 0]))

@@ -17,7 +17,8 @@ from semcal_ros.engine.search import calibrate
 from semcal_ros.engine.params import CalibrationParams, ScheduleParams, VerificationParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.problem import Problem
-from semcal_ros.engine.quality import QualityParams, QualityReport, assess, label_agreement
+from semcal_ros.engine.quality import QualityParams, assess, label_agreement
+from semcal_ros.engine.results import QualityReport
 from semcal_tools.scenes.labelnoise import NOISE_MODELS, add_network_noise
 from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world, target_image
 
@@ -102,7 +103,7 @@ def test_failed_when_the_pose_is_20_m_off(scene_factory):
 
 def test_runs_that_disagree_fail_the_result():
     """A refined run in another basin with a loss as low as the result's: the data cannot decide."""
-    from semcal_ros.engine.search import RunResult
+    from semcal_ros.engine.results import RunResult
 
     world = street_world(step=0.12)
     cam = camera()

@@ -56,7 +56,8 @@ def _run(args: argparse.Namespace) -> int:
     from semcal_ros.engine import validation
     from semcal_ros.io import files, ply
     from semcal_ros.engine.labels import LabelMapping, colorize
-    from semcal_ros.engine.search import Progress, calibrate
+    from semcal_ros.engine.results import Progress
+    from semcal_ros.engine.search import calibrate
     from semcal_ros.engine.params import CalibrationParams
     from semcal_ros.engine.problem import mapping_for
     from semcal_ros.engine.overlay import annotate_quality, loss_curve, render_overlay

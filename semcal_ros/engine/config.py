@@ -8,6 +8,7 @@ One file format serves both doors: ``config/*.yaml`` are ROS 2 parameter files
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -93,3 +94,20 @@ def _coerce(new: Any, old: Any, name: str) -> Any:
     except (TypeError, ValueError):
         raise ValueError(f"parameter '{name}': cannot use {new!r}") from None
     return new
+
+
+def check_rule(name: str, value: object, ok: bool, rule: str) -> None:
+    """One parameter rule, its failure named: ``schedule.max_evaluations must be >= 1, got ...``"""
+    if not ok:
+        shown = list(value) if isinstance(value, tuple) else value
+        raise ValueError(f"{name} must be {rule}, got {shown}")
+
+
+def check_finite(params: object) -> None:
+    """Every number of a parameter group is finite (NaN passes every < and > check)."""
+    for name, value in vars(params).items():
+        values = value if isinstance(value, tuple) else (value,)
+        for v in values:
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"{type(params).__name__.replace('Params', '').lower()}."
+                                 f"{name} must be a finite number, got {v}")

@@ -33,7 +33,7 @@ from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.config import apply_flat, load_node_params
 from semcal_ros.engine.labels import LabelMapping
-from semcal_ros.engine.search import Search, _Counter
+from semcal_ros.engine.search import EvaluationCounter, Search
 from semcal_ros.engine.params import CalibrationParams, ScheduleParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Problem, mapping_for
@@ -200,7 +200,7 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     if problem.degenerate(start):
         return unknown(calibrated, f"degenerate view at the calibration (loss {start.loss:.3g})",
                        t0)
-    counter = _Counter(None, None)
+    counter = EvaluationCounter(None, None)
     search = Search(problem, counter)
     vec, loss_best = _search(search, problem, calibrated, dp)
     if loss_best >= start.loss:

@@ -11,13 +11,13 @@ import numpy as np
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import INVALID, LabelMapping, colorize
-from semcal_ros.engine.params import RenderParams
+from semcal_ros.engine.render.view import RenderParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render import prepare_map, view_for
 from semcal_ros.engine.render.fast import render
 
 if TYPE_CHECKING:  # pragma: no cover
-    from semcal_ros.engine.quality import QualityReport
+    from semcal_ros.engine.results import QualityReport
 
 #: Banner colour (RGB) per verdict: traffic-light colours, readable at a glance.
 VERDICT_COLOURS = {"good": (40, 160, 60), "inconclusive": (230, 160, 20), "failed": (210, 40, 40)}

@@ -13,50 +13,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from semcal_ros.engine.config import apply_flat, load_node_params
+from semcal_ros.engine.config import apply_flat, check_finite, check_rule, load_node_params
 from semcal_ros.engine.loss import LossParams
 from semcal_ros.engine.quality import QualityParams
+from semcal_ros.engine.render.view import RenderParams
 
 #: Beyond these the search is no calibration any more (the loss has no basin that wide).
 MAX_BOUND_XYZ_M = 50.0
 MAX_BOUND_DEG = 180.0
-
-
-@dataclass(frozen=True)
-class RenderParams:
-    splat_lambda: float = 0.0  # disc radius px = splat_lambda / distance m; 0 = from the map
-    splat_scale: float = 1.5  # with splat_lambda 0: disc radius = splat_scale x point spacing
-    radius_max: float = 8.0  # px, full resolution
-    depth_falloff: float = 0.3  # depth factor at a disc's rim: nearest centre wins within a surface
-    depth_falloff_coarse: float = 0.05  # the same for reduced-resolution stages (smoother basin)
-    core_fraction: float = 1.0  # share of the disc radius that carries the label (rim: depth only)
-    lod_radius: float = 0.75  # px: chunks whose discs are smaller are thinned (0: draw all points)
-    near: float = 0.5  # m
-    far: float = 150.0  # m
-    crop_radius: float = 120.0  # m around the crop centre (initial position); 0 keeps the whole map
-
-    def __post_init__(self) -> None:
-        _finite(self)
-        for name in ("splat_lambda", "lod_radius", "crop_radius", "depth_falloff",
-                     "depth_falloff_coarse"):
-            _check(f"render.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
-        _check("render.splat_scale", self.splat_scale, self.splat_scale > 0, "> 0")
-        _check("render.radius_max", self.radius_max, self.radius_max >= 1, ">= 1 px")
-        _check("render.core_fraction", self.core_fraction, 0 < self.core_fraction <= 1,
-               "in (0, 1]")
-        _check("render.near", self.near, 0 < self.near < self.far, f"in (0, far = {self.far})")
-
-    def splat_lambda_for(self, point_spacing_m: float, focal_px: float) -> float:
-        """The disc size: given, or one that closes the gaps between neighbouring points.
-
-        The paper tuned lambda by eye until a rendered view looked as dense as the target; a
-        disc of ``splat_scale`` times the map's median nearest-neighbour gap does that for any
-        map and camera (lidar maps are anisotropic, so the gap between scan lines is larger than
-        that median); much larger discs overshoot outlines and bias the pose.
-        """
-        if self.splat_lambda > 0:
-            return self.splat_lambda
-        return self.splat_scale * focal_px * max(point_spacing_m, 1e-3)
 
 
 @dataclass(frozen=True)
@@ -88,7 +52,7 @@ class SearchParams:
     yaw_search_keep: int = 3
 
     def __post_init__(self) -> None:
-        _finite(self)
+        check_finite(self)
         if len(self.bound_xyz) != 3:
             raise ValueError(f"search.bound_xyz needs 3 values, got {len(self.bound_xyz)}")
         angles = (self.bound_pitch_deg, self.bound_yaw_deg) + \
@@ -102,9 +66,9 @@ class SearchParams:
         if max(angles) > MAX_BOUND_DEG:
             raise ValueError(f"search angle bound {max(angles):g} deg is beyond "
                              f"{MAX_BOUND_DEG:g} deg (use search.yaw_search for an unknown yaw)")
-        _check("search.yaw_search_step_deg", self.yaw_search_step_deg,
+        check_rule("search.yaw_search_step_deg", self.yaw_search_step_deg,
                0 < self.yaw_search_step_deg <= 90, "in (0, 90]")
-        _check("search.yaw_search_keep", self.yaw_search_keep, self.yaw_search_keep >= 1, ">= 1")
+        check_rule("search.yaw_search_keep", self.yaw_search_keep, self.yaw_search_keep >= 1, ">= 1")
 
 
 @dataclass(frozen=True)
@@ -136,19 +100,19 @@ class ScheduleParams:
     xatol: float = 1e-3  # in units of the bounds
 
     def __post_init__(self) -> None:
-        _finite(self)
+        check_finite(self)
         n = len(self.scales)
         if n == 0 or any(len(t) != n for t in (self.simplex, self.fatol, self.max_evaluations,
                                                 self.restarts)):
             raise ValueError("schedule: scales, simplex, fatol, max_evaluations and restarts "
                              "need one entry per stage each")
-        _check("schedule.scales", self.scales, min(self.scales) >= 1, ">= 1")
-        _check("schedule.simplex", self.simplex, min(self.simplex) > 0, "> 0")
-        _check("schedule.fatol", self.fatol, min(self.fatol) >= 0, ">= 0")
-        _check("schedule.max_evaluations", self.max_evaluations, min(self.max_evaluations) >= 1,
+        check_rule("schedule.scales", self.scales, min(self.scales) >= 1, ">= 1")
+        check_rule("schedule.simplex", self.simplex, min(self.simplex) > 0, "> 0")
+        check_rule("schedule.fatol", self.fatol, min(self.fatol) >= 0, ">= 0")
+        check_rule("schedule.max_evaluations", self.max_evaluations, min(self.max_evaluations) >= 1,
                ">= 1")
-        _check("schedule.restarts", self.restarts, min(self.restarts) >= 0, ">= 0")
-        _check("schedule.xatol", self.xatol, self.xatol > 0, "> 0")
+        check_rule("schedule.restarts", self.restarts, min(self.restarts) >= 0, ">= 0")
+        check_rule("schedule.xatol", self.xatol, self.xatol > 0, "> 0")
         if self.scales[-1] != 1:
             raise ValueError("schedule: the last stage must be at full resolution (scale 1)")
 
@@ -178,11 +142,11 @@ class VerificationParams:
     loss_margin_abs: float = 1e-4
 
     def __post_init__(self) -> None:
-        _finite(self)
+        check_finite(self)
         for name in ("starts", "noise", "refine_margin", "merge_translation_m",
                      "merge_rotation_deg", "loss_margin", "loss_margin_abs"):
-            _check(f"verification.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
-        _check("verification.refine_max", self.refine_max, self.refine_max >= 1, ">= 1")
+            check_rule(f"verification.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
+        check_rule("verification.refine_max", self.refine_max, self.refine_max >= 1, ">= 1")
 
 
 @dataclass(frozen=True)
@@ -217,21 +181,3 @@ class CalibrationParams:
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
 
-
-def _check(name: str, value: object, ok: bool, rule: str) -> None:
-    """One parameter rule, its failure named: ``schedule.max_evaluations must be >= 1, got ...``"""
-    if not ok:
-        shown = list(value) if isinstance(value, tuple) else value
-        raise ValueError(f"{name} must be {rule}, got {shown}")
-
-
-def _finite(params: object) -> None:
-    """Every number of a parameter group is finite (NaN passes every < and > check)."""
-    import math
-
-    for name, value in vars(params).items():
-        values = value if isinstance(value, tuple) else (value,)
-        for v in values:
-            if isinstance(v, float) and not math.isfinite(v):
-                raise ValueError(f"{type(params).__name__.replace('Params', '').lower()}."
-                                 f"{name} must be a finite number, got {v}")

@@ -25,16 +25,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
 from semcal_ros.engine.labels import CITYSCAPES, INVALID, SKY
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 
-if TYPE_CHECKING:  # pragma: no cover
-    from semcal_ros.engine.search import RunResult
-    from semcal_ros.engine.problem import Problem
+from semcal_ros.engine.results import QualityReport, RunResult
+
+
+class ProbedProblem(Protocol):
+    """What the report needs of a :class:`~semcal_ros.engine.problem.Problem`: its loss at a pose,
+    its render and its settings. A protocol, so that the report depends on no engine module above
+    it (the problem imports the parameters, which hold :class:`QualityParams`)."""
+
+    params: Any
+    target: Any
+    stages: Any
+
+    def loss(self, pose: Pose, stage: int = -1) -> float: ...
+
+    def render(self, pose: Pose, stage: int = -1) -> np.ndarray: ...
+
+    def level(self, stage: int) -> Any: ...
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 VERDICTS = ("good", "inconclusive", "failed")
@@ -74,47 +88,6 @@ class QualityParams:
             raise ValueError("quality.min_agreement and quality.min_coverage are shares in [0, 1]")
 
 
-@dataclass(frozen=True)
-class QualityReport:
-    verdict: str  # "good" | "inconclusive" | "failed"
-    reason: str  # one line: why (names the axis or the measure at fault)
-    agreement: float
-    agreement_per_class: dict[str, float]
-    coverage: float
-    uncertainty_translation_m: tuple[float, float, float]  # map x, y, z
-    uncertainty_rpy_deg: tuple[float, float, float]  # camera body roll, pitch, yaw
-    unconstrained: tuple[str, ...] = ()  # axes whose uncertainty is above the thresholds
-    spread_translation_m: float = 0.0
-    spread_rotation_deg: float = 0.0
-    evaluations: int = 0  # loss evaluations the report cost
-    roll_free: bool = False  # roll searched (else held fixed, and its uncertainty not judged)
-
-    def to_dict(self) -> dict:
-        """The ``quality:`` group of a result YAML."""
-        return {
-            "verdict": self.verdict,
-            "reason": self.reason,
-            "agreement": round(float(self.agreement), 4),
-            "agreement_per_class": {k: round(float(v), 4)
-                                    for k, v in self.agreement_per_class.items()},
-            "coverage": round(float(self.coverage), 4),
-            "uncertainty_translation_m": [round(float(v), 4)
-                                          for v in self.uncertainty_translation_m],
-            "uncertainty_rpy_deg": [round(float(v), 4) for v in self.uncertainty_rpy_deg],
-            "unconstrained": list(self.unconstrained),
-            "spread_translation_m": round(float(self.spread_translation_m), 4),
-            "spread_rotation_deg": round(float(self.spread_rotation_deg), 4),
-        }
-
-    def summary(self) -> str:
-        """One line for logs and the overlay."""
-        ut = self.uncertainty_translation_m
-        ur = self.uncertainty_rpy_deg if self.roll_free else self.uncertainty_rpy_deg[1:]
-        return (f"{self.verdict.upper()}: {self.reason}; agreement {self.agreement * 100:.0f} %, "
-                f"coverage {self.coverage * 100:.0f} %, +- {max(ut) * 100:.1f} cm / "
-                f"{max(ur):.2f} deg")
-
-
 def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 0.0
                     ) -> tuple[float, dict[str, float]]:
     """Share of pixels where the map drew a point and the target has a class whose classes agree,
@@ -135,7 +108,7 @@ def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 
     return float(same.mean()), per_class
 
 
-def axis_uncertainty(problem: "Problem", pose: Pose, params: QualityParams,
+def axis_uncertainty(problem: ProbedProblem, pose: Pose, params: QualityParams,
                      bounds: Sequence[float], on_probe: Callable[[], None] | None = None,
                      loss0: float | None = None) -> tuple[np.ndarray, int]:
     """Per axis (x, y, z in m; roll, pitch, yaw in deg): how far the pose can move along it, in
@@ -185,7 +158,7 @@ def axis_uncertainty(problem: "Problem", pose: Pose, params: QualityParams,
     return out, spent
 
 
-def assess(problem: "Problem", pose: Pose, runs: Sequence["RunResult"] = (),
+def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
            params: QualityParams | None = None,
            on_probe: Callable[[], None] | None = None) -> QualityReport:
     """The quality report of ``pose`` on ``problem`` (see the module docstring). ``runs`` are the

@@ -30,68 +30,15 @@ from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Problem
-from semcal_ros.engine.quality import QualityReport, assess
+from semcal_ros.engine.quality import assess
+from semcal_ros.engine.results import CalibrationResult, Progress, RunResult
 
 
 class Cancelled(Exception):
     """Raised inside ``calibrate`` when ``should_stop()`` returned True."""
 
 
-@dataclass(frozen=True)
-class Progress:
-    stage: str
-    evaluations: int
-    best_loss: float  # best of the running stage (losses of different resolutions differ)
-    best_pose: Pose
-
-
-@dataclass(frozen=True)
-class RunResult:
-    """One start: where its coarse stage ended, and the full schedule's result if refined."""
-
-    start: Pose
-    pose: Pose  # refined pose, or the coarse one when the start was not refined
-    loss: float  # full-resolution loss when refined, else the coarse loss
-    evaluations: int
-    coarse_loss: float
-    refined: bool
-    basin: int  # index of the basin (0 = the one of the result)
-
-
-@dataclass
-class CalibrationResult:
-    pose: Pose
-    loss: float
-    evaluations: int
-    seconds: float
-    history: list[tuple[int, int, float]] = field(default_factory=list)  # (run, stage, loss)
-    runs: list[RunResult] = field(default_factory=list)
-    accepted: int = 1  # starts that ended in the result's basin
-    spread_translation_m: float = 0.0  # RMS distance of those starts' poses from the result
-    spread_rotation_deg: float = 0.0
-    coverage: float = 0.0  # share of the target's non-sky pixels the map covers at the result
-    quality: QualityReport | None = None  # how good, without ground truth (semcal_ros.engine.quality)
-
-    def to_dict(self) -> dict:
-        """The fields a result pose YAML adds to the pose itself."""
-        return {
-            "loss": float(self.loss),
-            "evaluations": int(self.evaluations),
-            "seconds": round(float(self.seconds), 3),
-            "rpy_deg": [float(v) for v in self.pose.body_rpy_deg()],
-            "coverage": round(float(self.coverage), 4),
-            "verification": {
-                "runs": len(self.runs),
-                "refined": sum(r.refined for r in self.runs),
-                "accepted": int(self.accepted),
-                "spread_translation_m": float(self.spread_translation_m),
-                "spread_rotation_deg": float(self.spread_rotation_deg),
-            },
-            **({"quality": self.quality.to_dict()} if self.quality is not None else {}),
-        }
-
-
-class _Counter:
+class EvaluationCounter:
     """Counts evaluations, records history, reports progress, honours cancellation."""
 
     def __init__(self, progress: Callable[[Progress], None] | None,
@@ -131,7 +78,7 @@ class _Counter:
 class Search:
     """Nelder-Mead on one problem, in units of the search bounds around a centre pose."""
 
-    def __init__(self, problem: Problem, counter: _Counter) -> None:
+    def __init__(self, problem: Problem, counter: EvaluationCounter) -> None:
         self.problem, self.counter = problem, counter
         sp = problem.params.search
         # free parameters (x, y, z, [roll], pitch, yaw) and their search bounds
@@ -271,7 +218,7 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
     """The full procedure on a prepared problem (see the module docstring)."""
     t0 = time.perf_counter()
     params = problem.params
-    counter = _Counter(progress, should_stop)
+    counter = EvaluationCounter(progress, should_stop)
     search = Search(problem, counter)
     if not params.search.yaw_search and \
             problem.evaluate(initial, 0).coverage < params.loss.min_coverage:

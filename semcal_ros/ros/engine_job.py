@@ -120,7 +120,7 @@ class GoalState:
     running: bool = False
 
     def progress(self, p: Any) -> None:
-        """An engine :class:`~semcal_ros.engine.search.Progress` report."""
+        """An engine :class:`~semcal_ros.engine.results.Progress` report."""
         self.stage, self.evaluations = p.stage, p.evaluations
         self.best_loss, self.best_pose = p.best_loss, p.best_pose
 

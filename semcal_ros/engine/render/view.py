@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semcal_ros.engine.camera import MODEL_ID, CameraModel
-from semcal_ros.engine.params import RenderParams
+from semcal_ros.engine.config import check_finite, check_rule
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render.prepare import PreparedMap
 
@@ -16,6 +16,43 @@ RADIUS_STEPS = 4
 DEPTH_BITS = 24
 MAX_DEPTH_MM = (1 << DEPTH_BITS) - 1
 EMPTY_KEY = np.uint32(0xFFFFFFFF)
+
+
+@dataclass(frozen=True)
+class RenderParams:
+    splat_lambda: float = 0.0  # disc radius px = splat_lambda / distance m; 0 = from the map
+    splat_scale: float = 1.5  # with splat_lambda 0: disc radius = splat_scale x point spacing
+    radius_max: float = 8.0  # px, full resolution
+    depth_falloff: float = 0.3  # depth factor at a disc's rim: nearest centre wins within a surface
+    depth_falloff_coarse: float = 0.05  # the same for reduced-resolution stages (smoother basin)
+    core_fraction: float = 1.0  # share of the disc radius that carries the label (rim: depth only)
+    lod_radius: float = 0.75  # px: chunks whose discs are smaller are thinned (0: draw all points)
+    near: float = 0.5  # m
+    far: float = 150.0  # m
+    crop_radius: float = 120.0  # m around the crop centre (initial position); 0 keeps the whole map
+
+    def __post_init__(self) -> None:
+        check_finite(self)
+        for name in ("splat_lambda", "lod_radius", "crop_radius", "depth_falloff",
+                     "depth_falloff_coarse"):
+            check_rule(f"render.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
+        check_rule("render.splat_scale", self.splat_scale, self.splat_scale > 0, "> 0")
+        check_rule("render.radius_max", self.radius_max, self.radius_max >= 1, ">= 1 px")
+        check_rule("render.core_fraction", self.core_fraction, 0 < self.core_fraction <= 1,
+               "in (0, 1]")
+        check_rule("render.near", self.near, 0 < self.near < self.far, f"in (0, far = {self.far})")
+
+    def splat_lambda_for(self, point_spacing_m: float, focal_px: float) -> float:
+        """The disc size: given, or one that closes the gaps between neighbouring points.
+
+        The paper tuned lambda by eye until a rendered view looked as dense as the target; a
+        disc of ``splat_scale`` times the map's median nearest-neighbour gap does that for any
+        map and camera (lidar maps are anisotropic, so the gap between scan lines is larger than
+        that median); much larger discs overshoot outlines and bias the pose.
+        """
+        if self.splat_lambda > 0:
+            return self.splat_lambda
+        return self.splat_scale * focal_px * max(point_spacing_m, 1e-3)
 
 
 @dataclass(frozen=True)

@@ -93,7 +93,7 @@ class CalibratorNodeParams:
 class _Outcome:
     """What the engine thread hands back for one goal."""
 
-    result: Any  # semcal_ros.engine.search.CalibrationResult
+    result: Any  # semcal_ros.engine.results.CalibrationResult
     overlay: np.ndarray | None = None  # RGB, rendered for a result worth publishing
     overlay_error: str = ""
 

@@ -1,0 +1,106 @@
+"""What a calibration returns: the result, each start's run, the quality report, progress.
+
+Plain data, in a module of its own so that the search, the quality report, the drift check, the
+nodes and the command line share them without importing each other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from semcal_ros.engine.pose import Pose
+
+
+@dataclass(frozen=True)
+class Progress:
+    stage: str
+    evaluations: int
+    best_loss: float  # best of the running stage (losses of different resolutions differ)
+    best_pose: Pose
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One start: where its coarse stage ended, and the full schedule's result if refined."""
+
+    start: Pose
+    pose: Pose  # refined pose, or the coarse one when the start was not refined
+    loss: float  # full-resolution loss when refined, else the coarse loss
+    evaluations: int
+    coarse_loss: float
+    refined: bool
+    basin: int  # index of the basin (0 = the one of the result)
+
+
+@dataclass(frozen=True)
+class QualityReport:
+    verdict: str  # "good" | "inconclusive" | "failed"
+    reason: str  # one line: why (names the axis or the measure at fault)
+    agreement: float
+    agreement_per_class: dict[str, float]
+    coverage: float
+    uncertainty_translation_m: tuple[float, float, float]  # map x, y, z
+    uncertainty_rpy_deg: tuple[float, float, float]  # camera body roll, pitch, yaw
+    unconstrained: tuple[str, ...] = ()  # axes whose uncertainty is above the thresholds
+    spread_translation_m: float = 0.0
+    spread_rotation_deg: float = 0.0
+    evaluations: int = 0  # loss evaluations the report cost
+    roll_free: bool = False  # roll searched (else held fixed, and its uncertainty not judged)
+
+    def to_dict(self) -> dict:
+        """The ``quality:`` group of a result YAML."""
+        return {
+            "verdict": self.verdict,
+            "reason": self.reason,
+            "agreement": round(float(self.agreement), 4),
+            "agreement_per_class": {k: round(float(v), 4)
+                                    for k, v in self.agreement_per_class.items()},
+            "coverage": round(float(self.coverage), 4),
+            "uncertainty_translation_m": [round(float(v), 4)
+                                          for v in self.uncertainty_translation_m],
+            "uncertainty_rpy_deg": [round(float(v), 4) for v in self.uncertainty_rpy_deg],
+            "unconstrained": list(self.unconstrained),
+            "spread_translation_m": round(float(self.spread_translation_m), 4),
+            "spread_rotation_deg": round(float(self.spread_rotation_deg), 4),
+        }
+
+    def summary(self) -> str:
+        """One line for logs and the overlay."""
+        ut = self.uncertainty_translation_m
+        ur = self.uncertainty_rpy_deg if self.roll_free else self.uncertainty_rpy_deg[1:]
+        return (f"{self.verdict.upper()}: {self.reason}; agreement {self.agreement * 100:.0f} %, "
+                f"coverage {self.coverage * 100:.0f} %, +- {max(ut) * 100:.1f} cm / "
+                f"{max(ur):.2f} deg")
+
+
+@dataclass
+class CalibrationResult:
+    pose: Pose
+    loss: float
+    evaluations: int
+    seconds: float
+    history: list[tuple[int, int, float]] = field(default_factory=list)  # (run, stage, loss)
+    runs: list[RunResult] = field(default_factory=list)
+    accepted: int = 1  # starts that ended in the result's basin
+    spread_translation_m: float = 0.0  # RMS distance of those starts' poses from the result
+    spread_rotation_deg: float = 0.0
+    coverage: float = 0.0  # share of the target's non-sky pixels the map covers at the result
+    quality: QualityReport | None = None  # how good, without ground truth (semcal_ros.engine.quality)
+
+    def to_dict(self) -> dict:
+        """The fields a result pose YAML adds to the pose itself."""
+        return {
+            "loss": float(self.loss),
+            "evaluations": int(self.evaluations),
+            "seconds": round(float(self.seconds), 3),
+            "rpy_deg": [float(v) for v in self.pose.body_rpy_deg()],
+            "coverage": round(float(self.coverage), 4),
+            "verification": {
+                "runs": len(self.runs),
+                "refined": sum(r.refined for r in self.runs),
+                "accepted": int(self.accepted),
+                "spread_translation_m": float(self.spread_translation_m),
+                "spread_rotation_deg": float(self.spread_rotation_deg),
+            },
+            **({"quality": self.quality.to_dict()} if self.quality is not None else {}),
+        }
