@@ -190,6 +190,11 @@ def evaluate_scene(folder: str | Path, loss: str = "l2",
         raise FileNotFoundError(f"scene folder not found: {folder}")
     cloud = read_ply(Path(map_file) if map_file else folder / "map.ply")
     target = read_label_image(folder / "labels.png")
+    probabilities = None  # the segmenter's softmax beside its labels (not with added noise)
+    if (folder / "probabilities.npz").is_file() and not label_noise:
+        from semcal_ros.engine.loss import read_probabilities
+
+        probabilities = read_probabilities(folder / "probabilities.npz")
     if label_noise:
         from semcal_tools.scenes.labelnoise import noisy_labels
 
@@ -204,7 +209,7 @@ def evaluate_scene(folder: str | Path, loss: str = "l2",
     # one problem for all starts: the map is prepared once, cropped around the starts' mean
     t0 = time.perf_counter()
     problem = Problem(cloud, target, camera, np.mean([s.translation for s in starts], axis=0),
-                      run_params, mapping)
+                      run_params, mapping, probabilities=probabilities)
     prepare_seconds = time.perf_counter() - t0
     runs = []
     for i, start in enumerate(starts):

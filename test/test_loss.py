@@ -149,3 +149,110 @@ def test_label_outliers_keep_wide_disagreement_and_drop_thin_bands():
     assert not out[28:34].any()  # the thin band is not
     with pytest.raises(ValueError, match="loss.outlier_width_px"):
         LossParams(outlier_width_px=-2.0)
+
+
+# -- issue 18: losses for real segmenters ---------------------------------------------------------
+
+MI = LossParams(kind="mi", min_coverage=0.0)
+
+
+def _street(h=40, w=60):
+    """Sky, building on the left, vegetation on the right, road below."""
+    target = np.full((h, w), ROAD, np.uint8)
+    target[: h // 4] = SKY
+    target[h // 4: h // 2, : w // 2] = BUILDING
+    target[h // 4: h // 2, w // 2:] = VEG
+    return target
+
+
+def test_mutual_information_tolerates_a_consistent_confusion():
+    target = _street()
+    # the network called every vegetation pixel building: a consistent confusion
+    confused = np.where(target == VEG, BUILDING, target).astype(np.uint8)
+    rendered = target.copy()  # the map at the truth
+    shifted = np.roll(target, 3, axis=0)  # the map 3 px low
+    mi, l2 = LabelLoss(confused, MI), LabelLoss(confused, PAPER)
+    # MI: the truth's render still explains the labels better than a shifted one
+    assert mi(rendered) < mi(shifted)
+    # a renaming of classes carries the same information: loss 0 at a perfect render
+    assert LabelLoss(target, MI)(np.where(target == ROAD, VEG, np.where(
+        target == VEG, ROAD, target)).astype(np.uint8)) == pytest.approx(0.0, abs=1e-12)
+    assert mi(rendered) == pytest.approx(0.0, abs=1e-12) and l2(rendered) > 0.01  # L2 charges them
+
+
+def test_mutual_information_counts_nothing_rendered_and_matches_the_reference():
+    target = _street()
+    rendered = target.copy()
+    rendered[target == SKY] = INVALID  # nothing is rendered over the sky
+    truth = rendered.copy()
+    rendered[30:, 40:] = BUILDING  # a wrong region
+    away = rendered.copy()
+    away[30:, 40:] = INVALID  # a view that no longer shows it
+    loss = LabelLoss(target, MI)
+    # hiding the mismatch is not free: "nothing rendered" is a class that says little
+    assert loss(truth) == 0.0
+    assert loss(away) > 0.0
+    rng = np.random.default_rng(5)
+    classes = np.array([0, 2, 8, 9, 10, INVALID], np.uint8)
+    t = rng.choice(classes, (50, 70)).astype(np.uint8)
+    r = rng.choice(classes, (50, 70)).astype(np.uint8)
+    p = LossParams(kind="mi", crop_top=0.2, min_coverage=0.0)
+    value, cov = LabelLoss(t, p).evaluate(r)
+    ref, ref_cov = loss_reference(r, t, pair_table("l2"), p)
+    assert value == pytest.approx(ref, rel=1e-9)
+    assert cov == pytest.approx(ref_cov)
+    assert 0.0 < value <= 1.0
+    empty = np.full_like(t, INVALID)
+    assert LabelLoss(t, LossParams(kind="mi", min_coverage=0.05))(empty) == 10.0
+
+
+def test_class_probabilities_give_the_expected_cost():
+    from semcal_ros.engine.labels import LabelMapping
+    from semcal_ros.engine.loss import N_CLASSES, aligned_probabilities
+
+    target = _street()
+    rendered = np.roll(target, 2, axis=0)
+    one_hot = np.zeros(target.shape + (N_CLASSES,), np.float32)
+    ok = target < N_CLASSES
+    one_hot[ok, target[ok]] = 1.0
+    lut = LabelMapping().image_lut()
+    for band in (0.0, 4.0):
+        p = LossParams(boundary_band_px=band)
+        # certain probabilities = the argmax loss (up to the uint16 cost quantisation)
+        sure = LabelLoss(target, p, probabilities=aligned_probabilities(one_hot, lut, target))
+        assert sure(rendered) == pytest.approx(LabelLoss(target, p)(rendered), abs=1e-4)
+    # a pixel the network was unsure of costs less when the render shows its second choice
+    unsure = one_hot.copy()
+    unsure[target == VEG] = 0.0
+    unsure[target == VEG, VEG] = 0.6
+    unsure[target == VEG, BUILDING] = 0.4
+    q = aligned_probabilities(unsure, lut, target)
+    as_building = np.where(target == VEG, BUILDING, target).astype(np.uint8)
+    soft = LabelLoss(target, PAPER, probabilities=q)
+    assert soft(as_building) == pytest.approx(0.6 * LabelLoss(target, PAPER)(as_building),
+                                              rel=1e-3)
+    ref, _ = loss_reference(as_building, target, soft.table, PAPER, probabilities=q)
+    assert ref == pytest.approx(soft(as_building), rel=1e-9)
+    # MI fills its histogram with them
+    mi_soft = LabelLoss(target, MI, probabilities=q)
+    ref, _ = loss_reference(as_building, target, soft.table, MI, probabilities=q)
+    assert mi_soft(as_building) == pytest.approx(ref, rel=1e-9)
+
+
+def test_probabilities_file_errors_are_one_line(tmp_path):
+    from semcal_ros.engine.labels import LabelMapping
+    from semcal_ros.engine.loss import aligned_probabilities, read_probabilities
+
+    bad = tmp_path / "p.npz"
+    np.savez(bad, other=np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="no 'probabilities' array"):
+        read_probabilities(bad)
+    np.savez(bad, probabilities=np.zeros((4, 5, 3), np.float16))
+    with pytest.raises(ValueError, match=r"must be \(H, W, 19\)"):
+        read_probabilities(bad)
+    (tmp_path / "junk.npz").write_text("not a zip")
+    with pytest.raises(ValueError, match="not a readable"):
+        read_probabilities(tmp_path / "junk.npz")
+    with pytest.raises(ValueError, match="probabilities must be"):
+        aligned_probabilities(np.zeros((3, 3, 19)), LabelMapping().image_lut(),
+                              np.zeros((4, 4), np.uint8))

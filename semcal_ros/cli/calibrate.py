@@ -29,6 +29,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--label-mapping", help="YAML changing the class alignment")
     p.add_argument("--map-frame", default="map",
                    help="frame of the map; the initial pose's frame_id must match (default: map)")
+    p.add_argument("--probabilities",
+                   help="the segmenter's class probabilities (.npz, key 'probabilities', "
+                        "(H, W, 19) softmax over Cityscapes trainIds): the loss takes the "
+                        "expected cost under them (default: probabilities.npz beside --labels "
+                        "when present; 'none' = not used)")
     p.add_argument("--seed", type=int, default=0, help="seed of the verification starts")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -41,6 +46,26 @@ def _pose_frame(path: str) -> str | None:
     data = yaml.safe_load(Path(path).read_text())
     frame = data.get("frame_id") if isinstance(data, dict) else None
     return str(frame) if frame is not None else None
+
+
+def _probabilities(given: str | None, labels_path: str, shape: tuple[int, int]):
+    """The class probabilities to use: ``--probabilities``, else ``probabilities.npz`` beside the
+    label image when there is one (what ``semcal real-scene --probabilities`` writes)."""
+    from semcal_ros.engine.loss import read_probabilities
+
+    if given == "none":
+        return None
+    path = Path(given) if given else Path(labels_path).parent / "probabilities.npz"
+    if not path.is_file():
+        if given:
+            raise ValueError(f"--probabilities: no such file: {given}")
+        return None
+    probabilities = read_probabilities(path)
+    if probabilities.shape[:2] != shape:
+        raise ValueError(f"{path}: probabilities are {probabilities.shape[1]}x"
+                         f"{probabilities.shape[0]} but the label image is {shape[1]}x{shape[0]}")
+    print(f"class probabilities from {path}")
+    return probabilities
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,6 +102,7 @@ def _run(args: argparse.Namespace) -> int:
     if labels.shape != (camera.height, camera.width):
         raise ValueError(f"label image is {labels.shape[1]}x{labels.shape[0]} but camera_info "
                          f"says {camera.width}x{camera.height}")
+    probabilities = _probabilities(args.probabilities, args.labels, labels.shape)
     initial = files.read_pose(args.initial)
     validation.check(validation.frame_problems(_pose_frame(args.initial), args.map_frame,
                                                f"initial pose {args.initial}"))
@@ -104,7 +130,8 @@ def _run(args: argparse.Namespace) -> int:
         bar.set_postfix_str(f"best loss {p.best_loss:.5f}")
 
     try:
-        result = calibrate(cloud, labels, camera, initial, params, mapping, args.seed, progress)
+        result = calibrate(cloud, labels, camera, initial, params, mapping, args.seed, progress,
+                           probabilities=probabilities)
     finally:
         bar.close()
     validation.check(validation.result_problems(float(result.loss), params),

@@ -7,6 +7,18 @@ class-pair table: no float colour images are ever built. The loss is the mean ov
 Validity, as in the paper's CARLA set-up: the target must carry a usable class; a pixel where no map
 point landed is rendered as sky, which counts where the target is sky and is masked where it is not
 (such holes come from map sparsity, not from a wrong pose).
+
+Two additions for real segmenters, whose errors are whole regions of a consistently confused
+class (hedge = terrain, shadowed hedge = building) rather than noise:
+
+- ``kind: mi`` (semantic mutual information): the loss is the conditional entropy of the label
+  given the rendered class, H(T | R) / H(T) = 1 - MI(R; T) / H(T), from the joint histogram of
+  rendered and labelled classes over every valid target pixel ("nothing rendered" is a rendered
+  class of its own, so looking away is not free). A consistent confusion still carries
+  information, so it still aligns; a pose that hides the mismatches loses information too.
+- class probabilities as the target (``probabilities=`` of :class:`LabelLoss`): the cost of a
+  pixel is the expected colour distance under the segmenter's own softmax (L2/Huber), or the
+  histogram is filled with the probabilities (MI): a pixel the network was unsure of costs less.
 """
 
 from __future__ import annotations
@@ -21,12 +33,12 @@ from semcal_ros.engine.labels import INVALID, SKY, palette_array
 
 
 #: The per-pixel costs, by parameter value, with the name tables print: the one list of them.
-LOSS_KINDS = {"l2": "L2", "huber": "Huber"}
+LOSS_KINDS = {"l2": "L2", "huber": "Huber", "mi": "MI"}
 
 
 @dataclass(frozen=True)
 class LossParams:
-    kind: str = "l2"  # "l2" (squared colour distance) or "huber"
+    kind: str = "l2"  # "l2" (squared colour distance), "huber" or "mi" (mutual information)
     huber_delta: float = 0.3
     crop_top: float = 0.0  # fraction of image rows, from the top, left out of the loss
     min_coverage: float = 0.05  # fewer rendered pixels over the target's non-sky area = degenerate
@@ -70,10 +82,11 @@ class LossParams:
 
 
 def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
-    """float64[256, 256]: loss between the colours of two aligned classes (colours in [0, 1])."""
+    """float64[256, 256]: loss between the colours of two aligned classes (colours in [0, 1]);
+    ``mi`` has no table (the L2 one is returned, used only by the reference's band)."""
     colours = palette_array().astype(np.float64) / 255.0
     diff = colours[:, None, :] - colours[None, :, :]
-    if kind == "l2":
+    if kind in ("l2", "mi"):
         return np.sum(diff * diff, axis=2)
     a = np.abs(diff)
     huber = np.where(a <= delta, 0.5 * a * a, delta * (a - 0.5 * delta))
@@ -98,9 +111,13 @@ def class_distances(target: np.ndarray, band_px: float) -> np.ndarray:
 
 
 def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
-                   params: LossParams, band_px: float | None = None) -> tuple[float, float]:
+                   params: LossParams, band_px: float | None = None,
+                   probabilities: np.ndarray | None = None) -> tuple[float, float]:
     """(loss, coverage) in numpy; ``target`` holds aligned classes (INVALID = ignore).
-    ``band_px``: the boundary band at this image's resolution (default ``params``')."""
+    ``band_px``: the boundary band at this image's resolution (default ``params``');
+    ``probabilities``: (H, W, N_CLASSES) aligned class probabilities (the expected cost)."""
+    if params.kind == "mi":
+        return _mi_reference(rendered, target, params, probabilities)
     band = params.boundary_band_px if band_px is None else band_px
     if band > 0:
         table_px = _banded(rendered, target, table, band)
@@ -115,7 +132,10 @@ def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
     uncovered = int((scene & empty).sum())
     coverage = float(n_scene - uncovered) / n_scene if n_scene else 0.0
     n_valid = int(valid.sum())
-    if band > 0:
+    if probabilities is not None:
+        expected = expected_costs(probabilities, table, target, band)[:, top * target.shape[1]:]
+        total = float(expected[r_eff[valid], np.nonzero(valid)[0]].sum()) * _COST_UNIT
+    elif band > 0:
         total = float(table_px[top * target.shape[1]:][valid].sum())
     else:
         total = float(table[r_eff[valid], t[valid]].sum())
@@ -125,6 +145,102 @@ def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
     if n_valid == 0 or coverage < params.min_coverage:
         return params.degenerate_loss, coverage
     return total / n_valid, coverage
+
+
+def _mi_reference(rendered: np.ndarray, target: np.ndarray, params: LossParams,
+                  probabilities: np.ndarray | None) -> tuple[float, float]:
+    """H(T | R) / H(T) from the joint histogram, in numpy (the reference for the kernel)."""
+    top = int(round(params.crop_top * target.shape[0]))
+    r = rendered[top:].ravel().astype(np.int64)
+    t = target[top:].ravel().astype(np.int64)
+    ok = t != INVALID
+    scene = ok & (t != SKY)
+    n_scene = int(scene.sum())
+    coverage = float((scene & (r != INVALID)).sum()) / n_scene if n_scene else 0.0
+    rows = np.where(r == INVALID, N_CLASSES, r)[ok]
+    joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+    if probabilities is None:
+        np.add.at(joint, (rows, t[ok]), 1.0)
+    else:
+        q = probabilities[top:].reshape(-1, N_CLASSES)[ok]
+        np.add.at(joint, rows, q)
+    if joint.sum() == 0 or coverage < params.min_coverage:
+        return params.degenerate_loss, coverage
+    return conditional_entropy_share(joint), coverage
+
+
+def conditional_entropy_share(joint: np.ndarray) -> float:
+    """H(T | R) / H(T) of a joint histogram (rows R, columns T): 0 when the rendered class
+    decides the label, 1 when it says nothing about it (1 - normalised mutual information)."""
+    joint = np.asarray(joint, float)
+    n = joint.sum()
+    rows = joint.sum(axis=1, keepdims=True)
+    cols = joint.sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h_cond = -np.sum(np.where(joint > 0, joint * np.log(joint / rows), 0.0)) / n
+        h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
+    return float(h_cond / h_t) if h_t > 0 else 0.0
+
+
+def aligned_probabilities(probabilities: np.ndarray, image_lut: np.ndarray,
+                          target: np.ndarray) -> np.ndarray:
+    """float32 (H, W, N_CLASSES): a segmenter's softmax over Cityscapes trainIds 0-18 summed onto
+    the aligned classes (``LabelMapping.image_lut``) and renormalised over the classes the
+    loss can use; a pixel with (almost) no such mass keeps its target class with certainty."""
+    p = np.asarray(probabilities, dtype=np.float32)
+    if p.ndim != 3 or p.shape[2] != N_CLASSES or p.shape[:2] != target.shape:
+        raise ValueError(f"probabilities must be (H, W, {N_CLASSES}) = "
+                         f"{target.shape + (N_CLASSES,)}, got {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("probabilities contain NaN or infinite values")
+    out = np.zeros(p.shape, np.float32)
+    for train_id in range(N_CLASSES):
+        a = int(image_lut[train_id])
+        if a < N_CLASSES:
+            out[..., a] += p[..., train_id]
+    mass = out.sum(axis=2, keepdims=True)
+    sure = np.zeros_like(out)
+    t = target.astype(np.int64)
+    ok = t < N_CLASSES
+    sure[ok, t[ok]] = 1.0
+    weak = mass < 1e-3
+    out = np.where(weak, sure, out / np.maximum(mass, 1e-3))
+    return out
+
+
+def read_probabilities(path) -> np.ndarray:
+    """float32 (H, W, 19) from a ``probabilities.npz`` (key ``probabilities``: a segmenter's
+    softmax over Cityscapes trainIds 0-18, the size of labels.png), written by
+    ``semcal real-scene --probabilities``; one clear line for a file that is not one."""
+    try:
+        with np.load(path) as data:
+            keys = list(data.files)
+            p = data["probabilities"] if "probabilities" in keys else None
+    except (OSError, EOFError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable .npz file "
+                         f"({' '.join(str(exc).split())[:80]})") from None
+    if p is None:
+        raise ValueError(f"{path}: no 'probabilities' array (keys: {', '.join(keys) or 'none'})")
+    if p.ndim != 3 or p.shape[2] != N_CLASSES:
+        raise ValueError(f"{path}: probabilities must be (H, W, {N_CLASSES}), got {p.shape}")
+    return p.astype(np.float32)
+
+
+#: expected costs are stored as uint16 in units of the largest colour distance / 65535
+_COST_UNIT = 3.0 / 65535.0
+
+
+def expected_costs(probabilities: np.ndarray, table: np.ndarray, target: np.ndarray,
+                   band: float) -> np.ndarray:
+    """uint16[N_CLASSES, H*W] in units of ``_COST_UNIT``: per rendered class the expected cost
+    of each pixel under the aligned class probabilities (with the boundary band: times the
+    rendered class's distance share in the labels, as for the argmax target)."""
+    h, w, _ = probabilities.shape
+    q = probabilities.reshape(-1, N_CLASSES)
+    costs = (q @ table[:N_CLASSES, :N_CLASSES].T.astype(np.float32)).T  # (rendered, pixel)
+    if band > 0:
+        costs = costs * (class_distances(target, band).astype(np.float32) / 255.0)
+    return np.clip(np.rint(costs / _COST_UNIT), 0, 65535).astype(np.uint16)
 
 
 def _banded(rendered: np.ndarray, target: np.ndarray, table: np.ndarray, band: float
@@ -172,20 +288,106 @@ def _loss_kernel(rendered, target, table, start, dist, banded):
     return total, n_valid, n_scene, n_covered
 
 
+@numba.njit(cache=True, nogil=True)
+def _cost_kernel(rendered, target, start, costs):
+    """Sums of precomputed per-pixel costs (``costs[rendered class, pixel]``, uint16)."""
+    total = 0
+    n_valid = 0
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r == INVALID:
+                continue
+            n_covered += 1
+        elif r == INVALID:
+            r = SKY
+        total += costs[r, p]
+        n_valid += 1
+    return total, n_valid, n_scene, n_covered
+
+
+@numba.njit(cache=True, nogil=True)
+def _joint_kernel(rendered, target, start, joint, probabilities, soft):
+    """The joint histogram of rendered (row N_CLASSES = nothing rendered) and labelled classes
+    over the valid target pixels, soft (``probabilities[p]``) or by the target class."""
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r != INVALID:
+                n_covered += 1
+        row = N_CLASSES if r == INVALID else r
+        if soft:
+            for k in range(N_CLASSES):
+                joint[row, k] += probabilities[p, k]
+        else:
+            joint[row, t] += 1.0
+    return n_scene, n_covered
+
+
+@numba.njit(cache=True, nogil=True)
+def _conditional_entropy(joint, h_target):
+    n = 0.0
+    h = 0.0
+    for r in range(joint.shape[0]):
+        nr = 0.0
+        for t in range(joint.shape[1]):
+            nr += joint[r, t]
+        n += nr
+        for t in range(joint.shape[1]):
+            c = joint[r, t]
+            if c > 0:
+                h -= c * np.log(c / nr)
+    return h / n / h_target if n > 0 and h_target > 0 else 0.0
+
+
 class LabelLoss:
     """The loss against one target image, ready to be evaluated many times. ``scale`` is the
-    image's downsampling factor: the boundary band is given in full-resolution pixels."""
+    image's downsampling factor: the boundary band is given in full-resolution pixels.
+    ``probabilities``: (H, W, N_CLASSES) aligned class probabilities of the target (from
+    :func:`aligned_probabilities`), the expected cost instead of the argmax's."""
 
-    def __init__(self, target_aligned: np.ndarray, params: LossParams, scale: int = 1) -> None:
+    def __init__(self, target_aligned: np.ndarray, params: LossParams, scale: int = 1,
+                 probabilities: np.ndarray | None = None) -> None:
         self.params = params
         self.shape = target_aligned.shape
         self.target = np.ascontiguousarray(target_aligned, dtype=np.uint8).ravel()
         self.table = pair_table(params.kind, params.huber_delta)
         self.start = int(round(params.crop_top * self.shape[0])) * self.shape[1]
         self.band_px = params.boundary_band_px / scale
-        self.banded = self.band_px > 0
-        self.dist = (class_distances(target_aligned, self.band_px) if self.banded
-                     else np.zeros((1, 1), np.uint8))
+        self.mi = params.kind == "mi"
+        self.banded = self.band_px > 0 and not self.mi
+        self.soft = probabilities is not None
+        if self.soft and probabilities.shape != self.shape + (N_CLASSES,):
+            raise ValueError(f"probabilities {probabilities.shape} do not fit the labels "
+                             f"{self.shape}")
+        self.dist = (class_distances(target_aligned, self.band_px)
+                     if self.banded and not self.soft else np.zeros((1, 1), np.uint8))
+        self.costs = (expected_costs(probabilities, self.table, target_aligned,
+                                     self.band_px if self.banded else 0.0)
+                      if self.soft and not self.mi else None)
+        self.probabilities = (np.ascontiguousarray(probabilities.reshape(-1, N_CLASSES),
+                                                   dtype=np.float32)
+                              if self.soft and self.mi else np.zeros((1, N_CLASSES), np.float32))
+        if self.mi:  # H(T) over the (fixed) valid pixels: the normaliser of H(T | R)
+            joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+            _joint_kernel(np.full(self.target.shape, INVALID, np.uint8), self.target,
+                          self.start, joint, self.probabilities, self.soft)
+            cols = joint.sum(axis=0)
+            n = cols.sum()
+            self.h_target = float(-np.sum(np.where(cols > 0, cols * np.log(
+                np.where(cols > 0, cols, 1.0) / max(n, 1.0)), 0.0)) / max(n, 1.0))
 
     def __call__(self, rendered: np.ndarray) -> float:
         return self.evaluate(rendered)[0]
@@ -194,9 +396,22 @@ class LabelLoss:
         """(loss, coverage of the target's non-sky pixels by rendered points)."""
         if rendered.shape != self.shape:
             raise ValueError(f"rendered image {rendered.shape} != target {self.shape}")
-        total, n_valid, n_scene, n_covered = _loss_kernel(
-            np.ascontiguousarray(rendered).ravel(), self.target, self.table, self.start,
-            self.dist, self.banded)
+        flat = np.ascontiguousarray(rendered).ravel()
+        if self.mi:
+            joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+            n_scene, n_covered = _joint_kernel(flat, self.target, self.start, joint,
+                                               self.probabilities, self.soft)
+            coverage = n_covered / n_scene if n_scene else 0.0
+            if coverage < self.params.min_coverage or joint.sum() == 0:
+                return self.params.degenerate_loss, coverage
+            return float(_conditional_entropy(joint, self.h_target)), coverage
+        if self.costs is not None:
+            total, n_valid, n_scene, n_covered = _cost_kernel(flat, self.target, self.start,
+                                                              self.costs)
+            total = total * _COST_UNIT
+        else:
+            total, n_valid, n_scene, n_covered = _loss_kernel(
+                flat, self.target, self.table, self.start, self.dist, self.banded)
         coverage = n_covered / n_scene if n_scene else 0.0
         if self.params.uncovered_cost > 0:
             n_valid += n_scene - n_covered

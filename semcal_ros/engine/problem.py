@@ -17,7 +17,7 @@ import numpy as np
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import INVALID, LabelMapping
-from semcal_ros.engine.loss import LabelLoss
+from semcal_ros.engine.loss import LabelLoss, aligned_probabilities
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render import PreparedMap, ViewSetup, prepare_map, view_setup
@@ -58,11 +58,14 @@ class Problem:
     the camera when many starts share one problem. ``prepared`` is a map already prepared (by
     :func:`~semcal_ros.engine.render.prepare_map` with the same label mapping) to share between problems
     instead of preparing ``map_cloud`` again (which may then be None); ``center`` is then ignored.
+    ``probabilities`` (H, W, 19): the segmenter's softmax over Cityscapes trainIds beside the
+    labels (``DIR/probabilities.npz``); the loss then takes the expected cost under them.
     """
 
     def __init__(self, map_cloud: LabelledCloud | None, target: np.ndarray, camera: CameraModel,
                  center: np.ndarray, params: CalibrationParams | None = None,
-                 mapping: LabelMapping | None = None, prepared: PreparedMap | None = None) -> None:
+                 mapping: LabelMapping | None = None, prepared: PreparedMap | None = None,
+                 probabilities: np.ndarray | None = None) -> None:
         self.params = params or CalibrationParams()
         self.mapping = mapping_for(self.params, mapping)
         self.camera = camera
@@ -90,6 +93,8 @@ class Problem:
         self.target = self.mapping.map_image(target)
         if np.all(self.target == INVALID):
             raise ValueError("label image has no pixel of a class the map can match")
+        self.probabilities = (None if probabilities is None else aligned_probabilities(
+            probabilities, self.mapping.image_lut(), self.target))
         self.stages = self.params.schedule.stages()
         self._levels: dict[int, Level] = {}
         for stage in self.stages:
@@ -102,7 +107,10 @@ class Problem:
         cam = setup.camera
         off = scale // 2  # the sample nearest the centre of each scale x scale block
         target = self.target[off::scale, off::scale][:cam.height, :cam.width]
-        return Level(scale, setup, LabelLoss(np.ascontiguousarray(target), self.params.loss, scale))
+        probs = (None if self.probabilities is None else np.ascontiguousarray(
+            self.probabilities[off::scale, off::scale][:cam.height, :cam.width]))
+        return Level(scale, setup, LabelLoss(np.ascontiguousarray(target), self.params.loss, scale,
+                                             probs))
 
     def level(self, stage: int = -1) -> Level:
         return self._levels[self.stages[stage].scale]
@@ -117,7 +125,7 @@ class Problem:
         return Evaluation(float(loss), float(coverage))
 
     def loss(self, pose: Pose, stage: int = -1) -> float:
-        """The paper's masked, normalised loss at ``pose`` (``stage`` -1: full resolution)."""
+        """The loss (``params.loss.kind``) at ``pose`` (``stage`` -1: full resolution)."""
         return self.level(stage).loss(self.render(pose, stage))
 
     def masked(self, ignore: np.ndarray) -> "Problem":

@@ -285,11 +285,14 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
 def calibrate(map_cloud: LabelledCloud, target: np.ndarray, camera: CameraModel, initial: Pose,
               params: CalibrationParams | None = None, mapping: LabelMapping | None = None,
               seed: int | None = None, progress: Callable[[Progress], None] | None = None,
-              should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
+              should_stop: Callable[[], bool] | None = None,
+              probabilities: np.ndarray | None = None) -> CalibrationResult:
     """Find the camera pose in the map frame (see the module docstring). The map is cropped
-    around the initial position; preparing it is counted in the result's seconds."""
+    around the initial position; preparing it is counted in the result's seconds.
+    ``probabilities``: the segmenter's softmax beside the labels (Problem)."""
     t0 = time.perf_counter()
-    problem = Problem(map_cloud, target, camera, initial.translation, params, mapping)
+    problem = Problem(map_cloud, target, camera, initial.translation, params, mapping,
+                      probabilities=probabilities)
     result = solve(problem, initial, seed, progress, should_stop)
     result.seconds = time.perf_counter() - t0
     return result

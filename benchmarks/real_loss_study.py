@@ -1,0 +1,192 @@
+"""Issue 18: which loss calibrates on real labels? Every candidate on the same scenes and starts.
+
+For each scene folder (real frames from ``semcal real-scene``, catalogue layouts from ``semcal
+scene``) and each loss setting, the engine's full default procedure (``solve``) runs from the same
+seeded starts (ground truth + uniform noise, per start protocol), with the scene's own
+``calibrator.yaml`` (crop_top, label merges) under the setting. One prepared map serves every
+setting of a scene. Per run it records the error, the loss, the seconds and the quality verdict;
+``DIR/probabilities.npz`` (key ``probabilities``) is used by the ``+p`` settings when present.
+
+    flock /tmp/semcal-heavy.lock .venv/bin/python benchmarks/real_loss_study.py \
+        /work/realscenes/*_v2 --settings l2,band,band_u0.3,mi --starts 0.2:10,1:5 --runs 2 \
+        --json /tmp/study.json
+    .venv/bin/python benchmarks/real_loss_study.py --table /tmp/study*.json
+
+Settings (comma separated): ``l2`` the paper's masked L2 (no band), ``band`` L2 + 4 px boundary
+band, ``_uC`` adds ``uncovered_cost`` C, ``mi`` mutual information, ``+p`` the class
+probabilities as the target. ``--label-noise`` applies a noise model of
+``semcal_tools.scenes.labelnoise`` to labels.png (synthetic scenes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+
+def setting_params(name: str, base):
+    """CalibrationParams of a setting name (on top of ``base``)."""
+    loss = base.loss
+    kind, *mods = name.replace("+p", "").split("_")
+    if kind == "l2":
+        loss = replace(loss, kind="l2", boundary_band_px=0.0, uncovered_cost=0.0)
+    elif kind == "band":
+        loss = replace(loss, kind="l2", boundary_band_px=4.0, uncovered_cost=0.0)
+    elif kind == "mi":
+        loss = replace(loss, kind="mi", uncovered_cost=0.0)
+    elif kind == "default":
+        pass
+    else:
+        raise ValueError(f"unknown setting '{name}'")
+    for m in mods:
+        if m.startswith("u"):
+            loss = replace(loss, uncovered_cost=float(m[1:]))
+        elif m.startswith("b"):
+            loss = replace(loss, boundary_band_px=float(m[1:]))
+        else:
+            raise ValueError(f"unknown modifier '{m}' in '{name}'")
+    return replace(base, loss=loss)
+
+
+def run_scene(folder: Path, settings: list[str], start_protocols: list[tuple[float, float]],
+              runs: int, seed: int, label_noise: str, config: str | None) -> list[dict]:
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.problem import Problem
+    from semcal_ros.engine.search import solve
+    from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
+    from semcal_ros.io.ply import read_ply
+    from semcal_tools.evaluation import ProtocolParams, initial_guesses
+
+    cloud = read_ply(folder / "map.ply")
+    labels = read_label_image(folder / "labels.png")
+    if label_noise:
+        from semcal_tools.scenes.labelnoise import noisy_labels
+
+        labels = noisy_labels(labels, label_noise, 1)
+    camera = read_camera_info(folder / "camera_info.yaml")
+    truth = read_pose(folder / "ground_truth.yaml")
+    probs = None
+    if (folder / "probabilities.npz").is_file():
+        with np.load(folder / "probabilities.npz") as data:
+            probs = data["probabilities"].astype(np.float32)
+    scene_cfg = config or (str(folder / "calibrator.yaml")
+                           if (folder / "calibrator.yaml").is_file() else None)
+    out = []
+    prepared = None
+    for name in settings:
+        if name.endswith("+p") and probs is None:
+            continue
+        base = setting_params(name, CalibrationParams())
+        params = CalibrationParams.from_file(scene_cfg, base=base)
+        problem = Problem(cloud if prepared is None else None, labels, camera, truth.translation,
+                          params, prepared=prepared,
+                          probabilities=probs if name.endswith("+p") else None)
+        prepared = problem.pmap
+        truth_loss = problem.loss(truth)
+        for noise_m, noise_deg in start_protocols:
+            protocol = ProtocolParams(runs=runs, keep=runs, noise_xyz_m=noise_m,
+                                      noise_pitch_deg=noise_deg, noise_yaw_deg=noise_deg,
+                                      seed=seed)
+            for i, start in enumerate(initial_guesses(truth, protocol)):
+                t0 = time.perf_counter()
+                rec = {"scene": folder.name + (f"+{label_noise}" if label_noise else ""),
+                       "setting": name, "starts": f"{noise_m:g} m / {noise_deg:g} deg",
+                       "run": i, "truth_loss": truth_loss}
+                try:
+                    res = solve(problem, start, seed=seed + i)
+                    q = res.quality
+                    rec.update(t_cm=translation_error(res.pose, truth) * 100,
+                               r_deg=rotation_error_deg(res.pose, truth), loss=float(res.loss),
+                               verdict=q.verdict if q else "", reason=q.reason if q else "",
+                               agreement=q.agreement if q else None)
+                except ValueError as exc:
+                    rec.update(t_cm=translation_error(start, truth) * 100,
+                               r_deg=rotation_error_deg(start, truth), loss=None,
+                               verdict="error", reason=str(exc))
+                rec["seconds"] = time.perf_counter() - t0
+                rec["load"] = os.getloadavg()[0]
+                out.append(rec)
+                print(f"{rec['scene']:32} {name:12} {rec['starts']:14} {rec['t_cm']:8.1f} cm "
+                      f"{rec['r_deg']:6.2f} deg {rec['verdict']:12} {rec['seconds']:5.1f} s "
+                      f"load {rec['load']:.1f}", flush=True)
+    return out
+
+
+def table(records: list[dict]) -> str:
+    """A Markdown table per setting: a row per scene (and start protocol): median error,
+    worst, verdicts."""
+    lines = []
+    settings = sorted({r["setting"] for r in records})
+    for s in settings:
+        rs = [r for r in records if r["setting"] == s]
+        lines += [f"\n**{s}**\n", "| scene | starts | runs | median | worst | good | "
+                  "good & > 30 cm / 0.5 deg | s/run |", "|---|---|---|---|---|---|---|---|"]
+        keys = sorted({(r["scene"], r["starts"]) for r in rs})
+        for scene, starts in keys:
+            g = [r for r in rs if r["scene"] == scene and r["starts"] == starts]
+            t = np.array([r["t_cm"] for r in g])
+            a = np.array([r["r_deg"] for r in g])
+            good = [r for r in g if r["verdict"] == "good"]
+            bad_good = sum(r["t_cm"] > 30 or r["r_deg"] > 0.5 for r in good)
+            lines.append(f"| {scene} | {starts} | {len(g)} | {np.median(t):.1f} cm / "
+                         f"{np.median(a):.2f} deg | {t.max():.1f} cm / {a.max():.2f} deg | "
+                         f"{len(good)} | {bad_good} | {np.mean([r['seconds'] for r in g]):.1f} |")
+        lines.append(summary_line(rs))
+    return "\n".join(lines)
+
+
+def summary_line(rs: list[dict]) -> str:
+    t = np.array([r["t_cm"] for r in rs])
+    a = np.array([r["r_deg"] for r in rs])
+    good = np.array([r["verdict"] == "good" for r in rs])
+    accurate = (t <= 10) & (a <= 0.2)
+    bad = (t > 30) | (a > 0.5)
+    share = f"{good[accurate].mean() * 100:.0f} %" if accurate.any() else "-"
+    return (f"| **all** | | {len(rs)} | {np.median(t):.1f} cm / {np.median(a):.2f} deg | "
+            f"mean {t.mean():.1f} cm / {a.mean():.2f} deg | {good.sum()} (of accurate: {share}) "
+            f"| {int((good & bad).sum())} | |")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("scenes", nargs="*", type=Path)
+    ap.add_argument("--settings", default="l2,band,band_u0.3,mi")
+    ap.add_argument("--starts", default="1:5", help="m:deg start protocols, comma separated")
+    ap.add_argument("--runs", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--label-noise", default="")
+    ap.add_argument("--config", help="parameter file instead of each scene's calibrator.yaml")
+    ap.add_argument("--json", type=Path, help="append the records to this JSON file")
+    ap.add_argument("--table", nargs="+", type=Path, help="print the tables of JSON files")
+    args = ap.parse_args(argv)
+    if args.table:
+        recs = [r for p in args.table for r in json.loads(p.read_text())]
+        print(table(recs))
+        return 0
+    protocols = [tuple(float(v) for v in s.split(":")) for s in args.starts.split(",")]
+    settings = args.settings.split(",")
+    for s in settings:
+        from semcal_ros.engine.params import CalibrationParams
+
+        setting_params(s, CalibrationParams())  # a bad name fails before the work starts
+    records = json.loads(args.json.read_text()) if args.json and args.json.is_file() else []
+    for folder in args.scenes:
+        recs = run_scene(folder, settings, protocols, args.runs, args.seed, args.label_noise,
+                         args.config)
+        records += recs
+        if args.json:
+            args.json.write_text(json.dumps(records, indent=0))
+    print(table(records))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
