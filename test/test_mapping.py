@@ -61,6 +61,45 @@ def test_voxel_downsample_majority_label():
         filters.voxel_downsample(LabelledCloud(xyz), 0.0)
 
 
+def test_compiled_voxel_grid_and_scan_pass_match_their_numpy_definitions():
+    """kernels.voxel_majority (hash grid) against the sorting definition, float64 and float32,
+    with an averaged extra field; kernels.prepare_points against range filter + de-skew +
+    transform in numpy, with times given and from the azimuth."""
+    from semcal_ros.mapping import kernels
+    from semcal_ros.mapping.deskew import DeskewParams, azimuth_times, deskew_points
+
+    rng = np.random.default_rng(1)
+    xyz = rng.uniform(-30, 30, (50_000, 3))
+    label = rng.choice(np.array([0, ROAD, BUILDING, CAR], np.uint16), len(xyz))
+    for dtype in (np.float64, np.float32):
+        cloud = LabelledCloud(xyz.astype(dtype), label,
+                              {"intensity": rng.random(len(xyz)).astype(np.float32)})
+        for voxel in (0.5, 3.0):
+            fast, ref = filters.voxel_downsample(cloud, voxel), \
+                filters.voxel_downsample_sorted(cloud, voxel)
+            a, b = np.lexsort(fast.xyz.T), np.lexsort(ref.xyz.T)
+            assert len(fast) == len(ref) < len(xyz)
+            np.testing.assert_array_equal(fast.label[a], ref.label[b])
+            np.testing.assert_allclose(fast.xyz[a], ref.xyz[b], atol=1e-9)
+            np.testing.assert_allclose(fast.extra["intensity"][a], ref.extra["intensity"][b],
+                                       atol=1e-6)
+    with pytest.raises(ValueError, match="voxel grid too large"):
+        filters.voxel_downsample(LabelledCloud(np.array([[0.0, 0, 0], [1e6, 0, 0]])), 0.1)
+
+    xyz[::97] = np.nan
+    pose = _pose(3.0, 20.0)
+    twist = np.array([8.0, 0.3, 0.0, 0.01, 0.0, 0.4])
+    times = rng.uniform(-0.05, 0.05, len(xyz))
+    params = DeskewParams(source="azimuth")
+    azimuth = np.array([0.0, 1.0, params.period])
+    for given, expected_times in ((times, times), (np.zeros(0), azimuth_times(xyz, params))):
+        out, keep = kernels.prepare_points(xyz, given, twist, pose, 2.0, 40.0, azimuth)
+        d = np.linalg.norm(xyz, axis=1)
+        np.testing.assert_array_equal(keep, (d >= 2.0) & (d <= 40.0))
+        ref = filters.apply_rigid(deskew_points(xyz[keep], expected_times[keep], twist), pose)
+        np.testing.assert_allclose(out, ref, atol=1e-9)
+
+
 def test_dynamic_removal_in_corridor_keeps_parked_cars():
     xyz = np.array([[5.0, 0.5, 0.5], [5.0, 6.0, 0.5], [5.0, 6.0, 3.0], [20.0, -0.5, 0.5]])
     label = np.array([CAR, CAR, BUILDING, 252], np.uint16)  # 252 = moving-car

@@ -25,14 +25,16 @@ import numpy as np
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.mapping import filters
+from semcal_ros.mapping import kernels
 from semcal_ros.mapping.deskew import (
-    DeskewParams, body_twist, correct_vertical_angle, deskew_points, point_times,
+    TIME_FIELDS, DeskewParams, body_twist, correct_vertical_angle, point_times,
     twists_from_poses)
 from semcal_ros.mapping.pose_stream import PoseStream, as_matrix
 from semcal_ros.mapping.registration import (
     PairResult, RegistrationCloud, RegistrationParams, merge_registration, register_group,
     registration_cloud, rotation_deg)
 
+_NONE = np.zeros(0)  # an absent array argument of the compiled kernels
 GROUP_SIZE = 3  # the paper's groups of three neighbouring scans
 MAX_SKIPPED = 1000
 
@@ -151,7 +153,12 @@ class StreamingMapBuilder:
         # (scan id, reason) of refused scans; the newest MAX_SKIPPED only, so a live stream of
         # bad scans cannot grow memory
         self.skipped: deque[tuple[str, str]] = deque(maxlen=MAX_SKIPPED)
-        self.timings = {"filter": 0.0, "icp": 0.0, "merge": 0.0}
+        # seconds per stage: de-skew (+ range filter and the move into the map frame, one pass),
+        # filter (voxel grid with majority labels, dynamic classes, crop), grids (ICP grids of
+        # each scan), covariances (k-d trees and covariances of ICP clouds), icp (pairwise ICP
+        # and pose graphs), merge (grids and voxel grid of merged groups)
+        self.timings = {"deskew": 0.0, "filter": 0.0, "grids": 0.0, "covariances": 0.0,
+                        "icp": 0.0, "merge": 0.0}
         self.points_in = 0
         self.points_kept = 0
         self.deskewed = 0  # scans motion-compensated
@@ -216,8 +223,10 @@ class StreamingMapBuilder:
         except ValueError as exc:
             raise ScanRejected(f"scan {scan_id}: {exc}", "pose") from None
         lidar = vehicle @ self.extrinsic
-        scan = self._deskew(scan, stamp, lidar, pose is None, twist, scan_id)
-        kept = self._filter_scan(scan, lidar)
+        t1 = time.perf_counter()
+        xyz, label = self._prepare(scan, stamp, lidar, pose is None, twist, scan_id)
+        t2 = time.perf_counter()
+        kept = self._filter_scan(xyz, label, lidar)
         if len(kept) == 0:
             raise ScanRejected(f"scan {scan_id}: no points left after filtering ({len(scan)} in, "
                                f"d_max {p.d_max} m"
@@ -230,29 +239,49 @@ class StreamingMapBuilder:
         self._corrections.append(np.eye(4))
         self.points_in += len(scan)
         self.points_kept += len(kept)
+        t3 = time.perf_counter()
         reg = (registration_cloud(kept.xyz, lidar[:3, 3], p.registration) if p.icp else None)
-        self.timings["filter"] += time.perf_counter() - t0
+        t4 = time.perf_counter()
+        self.timings["deskew"] += t2 - t1
+        self.timings["filter"] += (t1 - t0) + (t3 - t2)
+        self.timings["grids"] += t4 - t3
         merges = self._push(_Node(kept, np.array([index]), reg), 0)
         return ScanReport(index, len(scan), len(kept), merges, time.perf_counter() - t0)
 
-    def _deskew(self, scan: LabelledCloud, stamp: float, lidar: np.ndarray, from_stream: bool,
-                twist: np.ndarray | None, scan_id: str) -> LabelledCloud:
-        """The scan with its points in the lidar frame of ``stamp`` (docs/mapping.md, De-skew),
-        after the elevation correction; unchanged without per-point time or a velocity."""
+    def _prepare(self, scan: LabelledCloud, stamp: float, lidar: np.ndarray, from_stream: bool,
+                 twist: np.ndarray | None, scan_id: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """The scan's points within range, de-skewed into the lidar frame of ``stamp``
+        (docs/mapping.md, De-skew) after the elevation correction, in the map frame; and their
+        labels. One compiled pass (``kernels.prepare_points``); no de-skew without per-point
+        time or a velocity."""
         p = self.params
-        xyz = correct_vertical_angle(scan.xyz, p.vertical_angle_deg)
-        try:
-            times = point_times(xyz, scan.extra, p.deskew)
-        except ValueError as exc:
-            raise ScanRejected(f"scan {scan_id}: {exc}", "fields") from None
-        if times is not None and twist is None:
+        xyz = scan.xyz
+        if p.vertical_angle_deg != 0:
+            xyz = correct_vertical_angle(xyz, p.vertical_angle_deg)
+        d = p.deskew
+        times, azimuth = None, _NONE
+        if d.enabled and d.source != "none":
+            if d.source in ("auto", "field") and any(k in scan.extra for k in TIME_FIELDS):
+                try:
+                    times = point_times(xyz, scan.extra, d)
+                except ValueError as exc:
+                    raise ScanRejected(f"scan {scan_id}: {exc}", "fields") from None
+            elif d.source in ("auto", "azimuth"):
+                sign = -1.0 if d.direction == "clockwise" else 1.0
+                azimuth = np.array([np.radians(d.reference_azimuth_deg), sign, d.period])
+        if (times is not None or len(azimuth)) and twist is None:
             twist = self._velocity(stamp, lidar, from_stream)
-        if times is not None and twist is not None:
-            xyz = deskew_points(xyz, times, twist)
+        if twist is None:
+            times, azimuth = None, _NONE
+        else:
             self.deskewed += 1
-        elif p.vertical_angle_deg == 0:
-            return scan
-        return LabelledCloud(xyz, scan.label, scan.extra)
+        points = xyz if xyz.dtype in (np.float32, np.float64) else xyz.astype(np.float64)
+        out, keep = kernels.prepare_points(
+            np.ascontiguousarray(points), _NONE if times is None else times,
+            _NONE if twist is None else np.asarray(twist, np.float64),
+            np.ascontiguousarray(lidar, dtype=np.float64), float(p.d_min), float(p.d_max),
+            azimuth)
+        return out, None if scan.label is None else scan.label[keep]
 
     def _velocity(self, stamp: float, lidar: np.ndarray, from_stream: bool) -> np.ndarray | None:
         """The lidar's body twist at ``stamp``: from the pose stream half a sweep either side,
@@ -269,10 +298,11 @@ class StreamingMapBuilder:
             return body_twist(self._priors[-1], lidar, stamp - self._stamps[-1])
         return None
 
-    def _filter_scan(self, scan: LabelledCloud, lidar_pose: np.ndarray) -> LabelledCloud:
+    def _filter_scan(self, xyz: np.ndarray, label: np.ndarray | None, lidar_pose: np.ndarray
+                     ) -> LabelledCloud:
+        """Voxel grid (majority label), dynamic classes, crop: the scan's share of the map."""
         p = self.params
-        cloud = filters.range_filter(LabelledCloud(scan.xyz, scan.label), p.d_max, p.d_min)
-        cloud = filters.voxel_downsample(filters.transform(cloud, lidar_pose), p.voxel)
+        cloud = filters.voxel_downsample(LabelledCloud(xyz, label), p.voxel)
         if cloud.label is None:
             cloud = LabelledCloud(cloud.xyz, np.full(len(cloud), filters.UNLABELED, np.uint16))
         if p.remove_dynamic:
@@ -318,12 +348,20 @@ class StreamingMapBuilder:
         corrections = [np.eye(4)] * len(group)
         weights = [len(n.scans) for n in group]
         reg = None
+        covariances = merged = 0.0
         if p.icp and all(n.reg is not None for n in group):
+            for node in group[1:]:  # the targets of the group's edges
+                node.reg.target(p.registration)
+            for node in group[:-1]:  # and their sources
+                node.reg.source(p.registration)
+            covariances = time.perf_counter() - t0
             result = register_group([n.reg for n in group], weights, p.registration)
             corrections = result.corrections
             self._pairs.extend(result.pairs)
+            tm = time.perf_counter()
             reg = merge_registration([n.reg for n in group], corrections, weights,
                                      p.registration)
+            merged = time.perf_counter() - tm
         t1 = time.perf_counter()
         parts, updates = [], []
         for node, c in zip(group, corrections):
@@ -334,8 +372,9 @@ class StreamingMapBuilder:
         cloud = filters.voxel_downsample(filters.concatenate(parts), p.voxel)
         if p.remove_dynamic and p.corridor > 0:
             cloud = self._remove_dynamic(cloud, self.path_xy())
-        self.timings["icp"] += t1 - t0
-        self.timings["merge"] += time.perf_counter() - t1
+        self.timings["covariances"] += covariances
+        self.timings["icp"] += t1 - t0 - covariances - merged
+        self.timings["merge"] += time.perf_counter() - t1 + merged
         return _Node(cloud, np.concatenate([n.scans for n in group]), reg), updates
 
     def _final_filters(self, cloud: LabelledCloud) -> LabelledCloud:

@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import KITTI_ID
+from semcal_ros.mapping import kernels
 
 #: SemanticKITTI "unlabeled" (0): loses every voxel vote against a real class.
 UNLABELED = KITTI_ID["unlabeled"]
@@ -68,7 +69,48 @@ def range_filter(cloud: LabelledCloud, d_max: float, d_min: float = 0.0) -> Labe
 
 
 def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
-    """One point per occupied voxel, with the voxel's majority label.
+    """One point per occupied voxel, with the voxel's majority label (the map's voxel grid).
+
+    The same rule as :func:`voxel_downsample_sorted` (the readable definition, below), computed
+    by a compiled one-pass hash grid (``kernels.voxel_majority``): 2-3x faster on a scan, and
+    O(N) instead of a sort. Voxels come in the order of their first point.
+    """
+    if voxel <= 0:
+        raise ValueError(f"voxel size must be positive, got {voxel}")
+    xyz = cloud.xyz
+    n = len(xyz)
+    if n == 0:
+        return LabelledCloud(np.zeros((0, 3)), None if cloud.label is None
+                             else np.zeros(0, np.uint16))
+    if not np.issubdtype(xyz.dtype, np.floating):
+        xyz = xyz.astype(np.float64)
+    span = [(float(xyz[:, k].max()) - float(xyz[:, k].min())) / voxel for k in range(3)]
+    if not max(span) < 2.0 ** 20:  # cells are packed 21 bits per axis (axis-0 reductions of
+        # an (N, 3) array are slow: column by column)
+        raise ValueError(f"voxel grid too large for {voxel} m cells; "
+                         "points far apart or a tiny voxel size")
+    if cloud.label is None:
+        classes, class_index = np.zeros(1, np.int64), np.zeros(n, np.int64)
+    else:  # class ids -> 0..k-1 through a table
+        present = np.bincount(cloud.label, minlength=1)
+        classes = np.flatnonzero(present)
+        table = np.zeros(len(present), np.int64)
+        table[classes] = np.arange(len(classes))
+        class_index = table[cloud.label]
+    names = [name for name, values in cloud.extra.items()
+             if values.ndim == 1 and np.issubdtype(values.dtype, np.floating)]
+    extra = (np.stack([cloud.extra[k].astype(np.float64) for k in names], axis=1) if names
+             else np.zeros((n, 0)))
+    points, best, means = kernels.voxel_majority(
+        np.ascontiguousarray(xyz), xyz.dtype.type(voxel), class_index, len(classes),
+        classes != UNLABELED if cloud.label is not None else np.ones(1, np.bool_), extra)
+    label = None if cloud.label is None else classes[best].astype(np.uint16)
+    return LabelledCloud(points, label, {k: means[:, j].astype(cloud.extra[k].dtype)
+                                         for j, k in enumerate(names)})
+
+
+def voxel_downsample_sorted(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
+    """One point per occupied voxel, with the voxel's majority label (readable definition).
 
     The point is the centroid of the majority class's points in the voxel, so class borders stay
     sharp and each point lies on a surface of its class. Done in numpy because Open3D's
@@ -80,7 +122,7 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
     Cells are computed in the cloud's own precision (float32 points are binned as float32 numbers)
     and centroids summed in float64, so a float32 cloud loses nothing to the averaging. The grid
     is anchored at the coordinate origin: callers that want it elsewhere shift the points.
-    This is the one majority-label voxel filter of the project (map builder and scene generator).
+    Voxels come in the order of their keys. :func:`voxel_downsample` computes the same.
     """
     if voxel <= 0:
         raise ValueError(f"voxel size must be positive, got {voxel}")

@@ -1,0 +1,187 @@
+"""Compiled per-point loops of the map builder (numba): one pass each, no temporaries.
+
+The builder touches every point of every scan a few times: range filter, de-skew, the move into
+the map frame, and the majority-label voxel grid (per scan and at every merge). In numpy each of
+those is a chain of whole-array temporaries (the de-skew alone builds a rotation per point) and
+the voxel grid is a sort; here each is one loop over the points, and the voxel grid a hash table
+(O(N), no sort). ``filters.voxel_downsample`` and ``deskew`` keep their numpy forms as the
+readable definitions; the tests check these kernels against them.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+_EMPTY = np.int64(-1)
+
+
+@nb.njit(cache=True, nogil=True)
+def _rotation_from_rotvec(wx: float, wy: float, wz: float) -> np.ndarray:
+    th2 = wx * wx + wy * wy + wz * wz
+    if th2 < 1e-16:
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = np.sqrt(th2)
+        a, b = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+    r = np.empty((3, 3))
+    r[0, 0] = 1.0 - b * (wy * wy + wz * wz)
+    r[1, 1] = 1.0 - b * (wx * wx + wz * wz)
+    r[2, 2] = 1.0 - b * (wx * wx + wy * wy)
+    r[0, 1] = -a * wz + b * wx * wy
+    r[1, 0] = a * wz + b * wx * wy
+    r[0, 2] = a * wy + b * wx * wz
+    r[2, 0] = -a * wy + b * wx * wz
+    r[1, 2] = -a * wx + b * wy * wz
+    r[2, 1] = a * wx + b * wy * wz
+    return r
+
+
+@nb.njit(cache=True, nogil=True)
+def prepare_points(xyz: np.ndarray, times: np.ndarray, twist: np.ndarray, pose: np.ndarray,
+                   d_min: float, d_max: float, azimuth: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Range filter, de-skew and the move into the map frame in one pass.
+
+    ``xyz`` (N, 3) in the lidar frame; per-point seconds from the pose instant in ``times`` (N,)
+    or, with ``times`` empty and ``azimuth`` = (reference azimuth rad, sign, period s), from the
+    azimuth (deskew.azimuth_times); ``twist`` (6,) body velocity (rho, phi) per second (empty:
+    no de-skew); ``pose`` 4x4 lidar -> map. A point is kept when finite and d_min <= |x| <= d_max
+    (as the sensor saw it). Returns (kept points in the map frame (M, 3) float64, kept mask (N,)).
+    De-skew: ``exp(t xi) @ x`` with the closed-form SE(3) exponential (deskew.se3_exp_points).
+    """
+    n = xyz.shape[0]
+    keep = np.zeros(n, np.bool_)
+    out = np.empty((n, 3))
+    deskew = twist.shape[0] == 6 and (times.shape[0] == n or azimuth.shape[0] == 3)
+    from_azimuth = times.shape[0] != n
+    rx = ry = rz = px = py = pz = 0.0
+    if deskew:
+        rx, ry, rz, px, py, pz = twist[0], twist[1], twist[2], twist[3], twist[4], twist[5]
+    ref = sign = period = 0.0
+    if from_azimuth and deskew:
+        ref, sign, period = azimuth[0], azimuth[1], azimuth[2]
+    # phi x rho and phi x (phi x rho)
+    c1x, c1y, c1z = py * rz - pz * ry, pz * rx - px * rz, px * ry - py * rx
+    c2x, c2y, c2z = py * c1z - pz * c1y, pz * c1x - px * c1z, px * c1y - py * c1x
+    nphi = np.sqrt(px * px + py * py + pz * pz)
+    lo2, hi2 = d_min * d_min, d_max * d_max
+    m = 0
+    for i in range(n):
+        x, y, z = float(xyz[i, 0]), float(xyz[i, 1]), float(xyz[i, 2])
+        d2 = x * x + y * y + z * z
+        if not (d2 <= hi2 and d2 >= lo2):  # also drops NaN
+            continue
+        keep[i] = True
+        if deskew:
+            if from_azimuth:
+                a = np.arctan2(y, x) - ref
+                a = np.arctan2(np.sin(a), np.cos(a))  # wrapped to (-pi, pi]
+                t = sign * a / (2.0 * np.pi) * period
+            else:
+                t = times[i]
+            th = abs(t) * nphi
+            if th < 1e-4:
+                a, b = 0.5 - th * th / 24.0, 1.0 / 6.0 - th * th / 120.0
+            else:
+                a, b = (1.0 - np.cos(th)) / (th * th), (th - np.sin(th)) / (th * th * th)
+            r = _rotation_from_rotvec(t * px, t * py, t * pz)
+            tx = t * rx + a * t * t * c1x + b * t * t * t * c2x
+            ty = t * ry + a * t * t * c1y + b * t * t * t * c2y
+            tz = t * rz + a * t * t * c1z + b * t * t * t * c2z
+            x, y, z = (r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + tx,
+                       r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + ty,
+                       r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + tz)
+        out[m, 0] = pose[0, 0] * x + pose[0, 1] * y + pose[0, 2] * z + pose[0, 3]
+        out[m, 1] = pose[1, 0] * x + pose[1, 1] * y + pose[1, 2] * z + pose[1, 3]
+        out[m, 2] = pose[2, 0] * x + pose[2, 1] * y + pose[2, 2] * z + pose[2, 3]
+        m += 1
+    return out[:m].copy(), keep
+
+
+@nb.njit(cache=True, nogil=True)
+def _hash(key: np.int64, mask: np.int64) -> np.int64:
+    h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
+    return np.int64(h >> np.uint64(20)) & mask
+
+
+@nb.njit(cache=True, nogil=True)
+def voxel_majority(xyz: np.ndarray, voxel, class_index: np.ndarray, n_classes: int,
+                   labelled: np.ndarray, extra: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One point per occupied voxel: the centroid of its winning class's points.
+
+    ``voxel`` has the points' precision (float32 points are binned as float32 numbers);
+    ``class_index`` (N,) int64 0..n_classes-1 (classes in ascending id order), ``labelled``
+    (n_classes,) bool: False for ``unlabeled``, which only wins a voxel nobody else is in; then
+    the most points win, ties to the smaller id (filters.voxel_downsample's rule). ``extra``
+    (N, E) float64 columns averaged over the same points. Returns (points (V, 3) float64,
+    class index (V,), extras (V, E)), voxels in the order of their first point.
+
+    One pass: an open-addressing hash table (key and first entry side by side) finds each
+    point's voxel; each voxel keeps a short chain of (class, count, sums) entries, one row each,
+    so a point costs about two cache misses and nothing is sorted.
+    """
+    n = xyz.shape[0]
+    n_extra = extra.shape[1]
+    size = 1
+    while size < 2 * n + 2:
+        size *= 2
+    mask = np.int64(size - 1)
+    table = np.full((size, 2), _EMPTY)  # [voxel key, newest entry of the voxel]
+    order = np.empty(n, np.int64)  # slot of each voxel, in the order of first appearance
+    links = np.empty((n, 2), np.int64)  # per entry [class, next entry of the same voxel]
+    sums = np.empty((n, 4 + n_extra))  # per entry [count, x, y, z, extras...]
+    n_vox = 0
+    n_entry = 0
+    for i in range(n):
+        cx = np.int64(np.floor(xyz[i, 0] / voxel))
+        cy = np.int64(np.floor(xyz[i, 1] / voxel))
+        cz = np.int64(np.floor(xyz[i, 2] / voxel))
+        key = ((cx & 0x1FFFFF) << 42) | ((cy & 0x1FFFFF) << 21) | (cz & 0x1FFFFF)
+        h = _hash(key, mask)
+        while table[h, 0] != _EMPTY and table[h, 0] != key:
+            h = (h + 1) & mask
+        c = class_index[i]
+        if table[h, 0] == _EMPTY:
+            table[h, 0] = key
+            table[h, 1] = _EMPTY
+            order[n_vox] = h
+            n_vox += 1
+        e = table[h, 1]
+        while e >= 0 and links[e, 0] != c:
+            e = links[e, 1]
+        if e < 0:
+            e = n_entry
+            n_entry += 1
+            links[e, 0] = c
+            links[e, 1] = table[h, 1]
+            table[h, 1] = e
+            for k in range(4 + n_extra):
+                sums[e, k] = 0.0
+        sums[e, 0] += 1.0
+        sums[e, 1] += xyz[i, 0]
+        sums[e, 2] += xyz[i, 1]
+        sums[e, 3] += xyz[i, 2]
+        for k in range(n_extra):
+            sums[e, 4 + k] += extra[i, k]
+    points = np.empty((n_vox, 3))
+    best = np.empty(n_vox, np.int64)
+    extras = np.empty((n_vox, n_extra))
+    for v in range(n_vox):
+        top, top_score, top_class = -1, -1.0, n_classes
+        e = table[order[v], 1]
+        while e >= 0:
+            c = links[e, 0]
+            score = sums[e, 0] + (n + 1.0) * labelled[c]
+            if score > top_score or (score == top_score and c < top_class):
+                top, top_score, top_class = e, score, c
+            e = links[e, 1]
+        k = sums[top, 0]
+        best[v] = top_class
+        points[v, 0] = sums[top, 1] / k
+        points[v, 1] = sums[top, 2] / k
+        points[v, 2] = sums[top, 3] / k
+        for j in range(n_extra):
+            extras[v, j] = sums[top, 4 + j] / k
+    return points, best, extras
