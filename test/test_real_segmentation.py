@@ -1,4 +1,5 @@
-"""Real segmenters: ESPNetv2 and ESPNet rebuilt as ONNX from the authors' weights, on real KITTI.
+"""Real segmenters: ESPNetv2, ESPNet and the EdgeTPU DeepLab rebuilt as ONNX from published
+weights, on real KITTI (and the DeepLab on the int8 model's own test image).
 
 The graph operators are checked against PyTorch's definitions (bilinear with align_corners,
 adaptive average pooling, PReLU) on random tensors; the exported networks are checked where it
@@ -34,6 +35,11 @@ WEIGHTS = {
     "espnetv2": DATA / "models" / "espnetv2_cityscapes" / "espnetv2_s_2.0_city_1024x512.npz",
     "espnet": DATA / "models" / "espnet_cityscapes" / "espnet_p_2_q_8.npz",
 }
+DEEPLAB = DATA / "models" / "edgetpu_deeplab_slim_cityscapes"
+DEEPLAB_WEIGHTS = DEEPLAB / "edgetpu_deeplab_slim_cityscapes_os16.npz"
+needs_deeplab = pytest.mark.skipif(
+    not (DEEPLAB_WEIGHTS.is_file() and (KITTI / "image_2" / "000000.png").is_file()),
+    reason=f"EdgeTPU DeepLab weights or KITTI frame 0 not found under {DATA}")
 needs_data = pytest.mark.skipif(
     not (KITTI / "image_2" / "000000.png").is_file() or not all(p.is_file() for p in
                                                                   WEIGHTS.values()),
@@ -216,5 +222,78 @@ def test_export_command_and_bad_weights_are_one_clear_line(tmp_path, capsys):
     ]
     for args, message in cases:
         assert main(["export-model", *args, "--out", str(tmp_path / "x.onnx")]) == 1
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
+
+
+# ------------------------------------------------------------------------ EdgeTPU DeepLab (int8)
+
+@pytest.fixture(scope="module")
+def deeplab(tmp_path_factory) -> tuple[Path, Path]:
+    """The EdgeTPU DeepLab exported at its default size (KITTI's 1241 x 376) by the command."""
+    out = tmp_path_factory.mktemp("deeplab") / "edgetpu_deeplab.onnx"
+    assert main(["export-model", "edgetpu_deeplab", "--weights", str(DEEPLAB_WEIGHTS),
+                 "--out", str(out)]) == 0
+    return out, out.with_suffix(".yaml")
+
+
+@needs_deeplab
+def test_deeplab_matches_the_int8_tflite_labels_on_its_test_image(tmp_path):
+    """The float graph against the published int8 model's own output (513 x 513, its size)."""
+    from semcal_ros.segmentation.export.exporter import export_model
+
+    result = export_model("edgetpu_deeplab", DEEPLAB_WEIGHTS, tmp_path / "d513.onnx", 513, 513)
+    assert result.parameters == 2_055_388
+    segmenter = ImageSegmenter.from_files(result.model_path, result.config_path,
+                                          RunnerParams(threads=2))
+    image, encoding = read_colour_image(DEEPLAB / "coral_test_image.png")
+    labels = segmenter.segment(image, encoding)
+    int8 = files.read_label_image(DEEPLAB / "coral_test_int8_labels_513.png")
+    agree = float((labels == int8).mean())
+    print(f"\nEdgeTPU DeepLab float vs int8 tflite labels: {100 * agree:.2f} %")
+    assert agree >= 0.98  # measured 99.13 % (int8 rounding flips boundary pixels only)
+
+
+@needs_deeplab
+def test_deeplab_config_is_the_documented_one_and_beats_espnetv2_on_kitti(deeplab, frame0):
+    model, config = deeplab
+    assert yaml.safe_load(config.read_text()) == model_config("edgetpu_deeplab", 1241, 376)
+    example = ROOT / "config" / "models" / "edgetpu_deeplab.yaml"
+    assert yaml.safe_load(example.read_text()) == yaml.safe_load(config.read_text())
+    segmenter = ImageSegmenter.from_files(model, config, RunnerParams(threads=2))
+    image, encoding = read_colour_image(frame0["image"])
+    labels = segmenter.segment(image, encoding)
+    assert labels.shape == (376, 1241) and labels.max() <= 18  # no background channel
+    agreement = label_agreement(labels, frame0["xyz"], frame0["labels"], frame0["projection"])
+    print("\nEdgeTPU DeepLab, KITTI 00 frame 0\n" + agreement.table())
+    # measured 80.7 % (road 92.8, building 80.4, vegetation 53.8, pole 58.2, car 94.5);
+    # ESPNetv2 72.6 % on the same points
+    assert agreement.overall >= 0.78
+    share = {name: value for name, (value, _) in agreement.per_class.items()}
+    assert share["road"] >= 0.90 and share["vegetation"] >= 0.45 and share["car"] >= 0.90
+
+
+@needs_deeplab
+def test_deeplab_graph_errors_are_one_clear_line(tmp_path, capsys):
+    import json
+
+    weights = tmp_path / "w.npz"
+    weights.write_bytes(DEEPLAB_WEIGHTS.read_bytes())
+    graph = json.loads(DEEPLAB_WEIGHTS.with_name(DEEPLAB_WEIGHTS.stem + ".graph.json")
+                       .read_text())
+    unknown = json.loads(json.dumps(graph))
+    unknown["ops"][3]["op"] = "MIRROR_PAD"
+    (tmp_path / "unknown.json").write_text(json.dumps(unknown))
+    swish = json.loads(json.dumps(graph))
+    swish["ops"][0]["act"] = 6
+    (tmp_path / "swish.json").write_text(json.dumps(swish))
+    cases = [
+        ([], "graph file not found: " + str(tmp_path / "w.graph.json")),
+        (["--graph", str(tmp_path / "unknown.json")], "operator 3 is MIRROR_PAD"),
+        (["--graph", str(tmp_path / "swish.json")], "operator 0: fused activation 6"),
+    ]
+    for extra, message in cases:
+        assert main(["export-model", "edgetpu_deeplab", "--weights", str(weights), *extra,
+                     "--out", str(tmp_path / "x.onnx")]) == 1
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1, err

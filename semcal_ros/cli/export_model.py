@@ -1,7 +1,8 @@
 """``semcal export-model``: a real Cityscapes segmenter as ONNX, from its published weights.
 
-Builds ESPNetv2 or ESPNet from a ``.npz`` of the authors' PyTorch state_dict (no PyTorch needed)
-and writes the model config beside it, ready for ``semcal segment-image`` and the
+Builds ESPNetv2 or ESPNet from a ``.npz`` of the authors' PyTorch state_dict, or the EdgeTPU
+DeepLab from its dequantised ``.npz`` and ``.graph.json`` operator list (no PyTorch or TensorFlow
+needed), and writes the model config beside it, ready for ``semcal segment-image`` and the
 ``image_segmenter`` node. See docs/real-data.md.
 """
 
@@ -12,20 +13,22 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from semcal_ros.segmentation.export import ARCH_NAMES, DEFAULT_SIZE
+    from semcal_ros.segmentation.export import ARCH_NAMES, DEFAULT_SIZES
 
     parser = subparsers.add_parser(
-        "export-model", help="build a real Cityscapes segmenter (ESPNetv2, ESPNet) as ONNX",
+        "export-model", help="build a real Cityscapes segmenter (ESPNetv2, ESPNet, EdgeTPU DeepLab) as ONNX",
         description="Rebuild a published Cityscapes segmentation network as an ONNX graph from "
                     "its weights (.npz of the PyTorch state_dict) and write its model config "
                     "YAML beside it (same name, .yaml).")
     parser.add_argument("arch", choices=ARCH_NAMES, help="network architecture")
     parser.add_argument("--weights", required=True, type=Path, help=".npz weights file")
     parser.add_argument("--out", required=True, type=Path, help="ONNX file to write (.onnx)")
-    parser.add_argument("--width", type=int, default=DEFAULT_SIZE[0],
-                        help=f"network input width (default {DEFAULT_SIZE[0]})")
-    parser.add_argument("--height", type=int, default=DEFAULT_SIZE[1],
-                        help=f"network input height (default {DEFAULT_SIZE[1]})")
+    sizes = ", ".join(f"{a} {w}x{h}" for a, (w, h) in DEFAULT_SIZES.items())
+    parser.add_argument("--width", type=int, help=f"network input width (default: {sizes})")
+    parser.add_argument("--height", type=int, help="network input height (default: as above)")
+    parser.add_argument("--graph", type=Path,
+                        help="edgetpu_deeplab: its operator list (default: X.graph.json beside "
+                             "X.npz)")
     parser.set_defaults(func=run)
 
 
@@ -35,9 +38,10 @@ def run(args: argparse.Namespace) -> int:
     from semcal_ros.segmentation.export.exporter import export_model
 
     start = time.perf_counter()
-    result = export_model(args.arch, args.weights, args.out, args.width, args.height)
+    result = export_model(args.arch, args.weights, args.out, args.width, args.height,
+                          args.graph)
     print(f"{args.arch}: {result.parameters:,} parameters, {result.nodes} nodes, "
           f"{result.folded_batchnorms} BatchNorms folded into convolutions, "
-          f"{args.width}x{args.height} input, built in {time.perf_counter() - start:.1f} s\n"
+          f"{result.width}x{result.height} input, built in {time.perf_counter() - start:.1f} s\n"
           f"  model:  {result.model_path}\n  config: {result.config_path}")
     return 0

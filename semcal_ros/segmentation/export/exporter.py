@@ -10,13 +10,15 @@ import onnx
 import yaml
 
 from semcal_ros.engine.labels import CITYSCAPES
-from semcal_ros.segmentation.export import ARCH_NAMES, DEFAULT_SIZE, espnet, espnetv2
+from semcal_ros.segmentation.export import (ARCH_NAMES, DEFAULT_SIZES, edgetpu_deeplab, espnet,
+                                            espnetv2)
 from semcal_ros.segmentation.export.graph import Weights
 from semcal_ros.segmentation.model_config import model_config_from_dict
 
 #: Cityscapes trainIds 0-18 by name, then the models' background/void channel (ignored).
 CLASSES_20: list[str | None] = [CITYSCAPES[i] for i in range(19)] + [None]
-
+#: Cityscapes trainIds 0-18 by name (models without a background channel).
+CLASSES_19: list[str | None] = CLASSES_20[:19]
 
 @dataclass(frozen=True)
 class Architecture:
@@ -28,6 +30,8 @@ class Architecture:
     mean: tuple[float, float, float]
     std: tuple[float, float, float]
     note: str
+    classes: tuple[str | None, ...] = tuple(CLASSES_20)
+    outputs: str = "20 outputs, 19 = background (ignored)"
 
 
 ARCHITECTURES: dict[str, Architecture] = {
@@ -38,6 +42,11 @@ ARCHITECTURES: dict[str, Architecture] = {
         espnet.build, "BGR", 1.0, (72.3923111, 82.90893555, 73.15840149),
         (45.3192215 * 255.0, 46.15289307 * 255.0, 44.91483307 * 255.0),
         "ESPNet (p=2, q=8) Cityscapes, sacmehta/ESPNet: BGR 0-255, (x - mean) / std / 255"),
+    "edgetpu_deeplab": Architecture(
+        edgetpu_deeplab.build, "RGB", 1.0, (128.0, 128.0, 128.0), (128.0, 128.0, 128.0),
+        "DeepLab v3 MobileNet-EdgeTPU (x0.75) Cityscapes, google-coral/test_data int8 tflite "
+        "dequantised: RGB, (x - 128) / 128, fully convolutional",
+        tuple(CLASSES_19), "19 outputs = trainIds 0-18"),
 }
 assert tuple(ARCHITECTURES) == ARCH_NAMES
 
@@ -50,6 +59,8 @@ class ExportResult:
     parameters: int
     folded_batchnorms: int
     nodes: int
+    width: int
+    height: int
 
 
 def model_config(arch: str, width: int, height: int) -> dict[str, Any]:
@@ -64,7 +75,7 @@ def model_config(arch: str, width: int, height: int) -> dict[str, Any]:
         "mean": list(a.mean),
         "std": list(a.std),
         "output": "logits",
-        "classes": list(CLASSES_20),
+        "classes": list(a.classes),
         "ignore": [],
     }
 
@@ -75,27 +86,41 @@ def config_path_for(model_path: str | Path) -> Path:
 
 
 def export_model(arch: str, weights_path: str | Path, out: str | Path,
-                 width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1]) -> ExportResult:
-    """Build ``arch`` from ``weights_path``; write ``out`` (.onnx) and its model config."""
+                 width: int | None = None, height: int | None = None,
+                 graph: str | Path | None = None) -> ExportResult:
+    """Build ``arch`` from ``weights_path``; write ``out`` (.onnx) and its model config.
+
+    ``width`` / ``height`` default to the architecture's :data:`DEFAULT_SIZES`; ``graph`` is
+    the EdgeTPU DeepLab's operator list (default: ``X.graph.json`` beside ``X.npz``).
+    """
     if arch not in ARCHITECTURES:
         raise ValueError(f"unknown architecture '{arch}' (known: {', '.join(ARCHITECTURES)})")
     out = Path(out)
     if out.suffix != ".onnx":
         raise ValueError(f"{out}: the model file must end in .onnx")
+    if graph is not None and arch != "edgetpu_deeplab":
+        raise ValueError(f"--graph is for edgetpu_deeplab only ({arch} is built from its "
+                         "weights alone)")
+    width = DEFAULT_SIZES[arch][0] if width is None else width
+    height = DEFAULT_SIZES[arch][1] if height is None else height
     a = ARCHITECTURES[arch]
     weights = Weights(weights_path, arch)
-    model = a.build(weights, width, height)
+    if graph is not None:
+        model = edgetpu_deeplab.build(weights, width, height, graph)
+    else:
+        model = a.build(weights, width, height)
     config = model_config(arch, width, height)
     model_config_from_dict(config)  # the runner will accept it
     out.parent.mkdir(parents=True, exist_ok=True)
     onnx.save(model, str(out))
     config_path = config_path_for(out)
     header = (f"# Model config of {out.name}, written by `semcal export-model {arch}`.\n"
-              f"# {a.note}; 20 outputs, 19 = background (ignored).\n")
+              f"# {a.note}; {a.outputs}.\n")
     config_path.write_text(header + yaml.safe_dump(config, sort_keys=False, width=100,
                                                    default_flow_style=None))
     builder_stats = _stats(model)
-    return ExportResult(out, config_path, weights.parameters, builder_stats[0], builder_stats[1])
+    return ExportResult(out, config_path, weights.parameters, builder_stats[0], builder_stats[1],
+                        width, height)
 
 
 def _stats(model: onnx.ModelProto) -> tuple[int, int]:
