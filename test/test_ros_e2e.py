@@ -376,9 +376,14 @@ def test_live_pipeline_calibrates_the_demo_scene(graph, listener, demo_scene, tm
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
 
     overlay_file = tmp_path / "overlay.png"
-    builder = graph.start_node("map_builder", params={"mapping.icp": False,
-                                                      "publish_period": 1.0, "queue_size": 100},
-                               remap={"scan": "/lidar/points", "odom": "/lidar/odom"})
+    # Scans are a best-effort stream by default (a late sample is dropped, as from a sensor); under
+    # a loaded CI machine one can be lost, so this test asks for reliable delivery by the QoS
+    # override parameters a user would set for a replay that must lose nothing.
+    builder = graph.start_node("map_builder", params={
+        "mapping.icp": False, "publish_period": 1.0, "queue_size": 100,
+        "qos_overrides./lidar/points.subscription.reliability": "reliable",
+        "qos_overrides./lidar/points.subscription.depth": 100},
+        remap={"scan": "/lidar/points", "odom": "/lidar/odom"})
     cal = graph.start_node("calibrator", params_file=REPO / "config" / "calibrator.yaml",
                            params={"overlay_file": str(overlay_file)})
     watcher = DiagnosticsWatcher(listener.node)
