@@ -1,5 +1,7 @@
-"""Drift check (semcal_ros.engine.drift) and ``semcal check`` on the small junction: an unchanged camera
-passes, a turned one is flagged with its drift, and what cannot be judged says so."""
+"""Drift check (semcal_ros.engine.drift), the drift watch (semcal_ros.engine.drift_watch: the
+reference and the confirmation, without ROS) and ``semcal check`` on the small junction: an
+unchanged camera passes, a turned one is flagged with its drift, and what cannot be judged says
+so."""
 
 from __future__ import annotations
 
@@ -11,7 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from semcal_ros.engine.drift import DriftChecker, DriftParams
+from semcal_ros.engine.drift import DriftChecker, DriftParams, DriftReport
+from semcal_ros.engine.drift_watch import REFERENCE_MESSAGE, DriftWatch
 from semcal_ros.io import files, ply
 from semcal_ros.engine.pose import Pose
 from semcal_tools.scenes import SIZES
@@ -90,3 +93,68 @@ def test_semcal_check_exit_codes(demo_scene: Path, tmp_path: Path):
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 1 and "Traceback" not in bad.stderr and \
         len(bad.stderr.strip().splitlines()) == 1
+
+
+def _report(level: str, pose: Pose, drift_deg: float = 0.0) -> DriftReport:
+    """A check's report as check_drift makes it (what the watch reads of it)."""
+    return DriftReport(level, f"{level} check", pose, pose if level != "unknown" else None,
+                       drift_rotation_deg=drift_deg, loss_calibrated=0.2, loss_best=0.18,
+                       raw_vector=pose.vector() + 1e-3, raw_gain=0.08)
+
+
+def test_drift_watch_takes_the_first_clean_check_as_reference_and_confirms_levels():
+    pose = Pose.from_body_rpy_deg(np.zeros(3), [0.0, 5.0, 30.0])
+    watch = DriftWatch(confirm=2)
+    assert watch.observe(_report("unknown", pose)).message == "cannot judge: unknown check"
+    assert watch.reference is None and not watch.referenced  # cannot judge: no reference
+    first = watch.observe(_report("ok", pose, 0.05))
+    assert watch.reference is not None and watch.reference.raw_gain == 0.08  # kept as checked
+    assert first.report.message == REFERENCE_MESSAGE and first.report.drift_rotation_deg == 0.0
+    assert first.shown == "ok" and not first.pending
+    warned = watch.observe(_report("warn", pose, 0.3))  # a new level waits for confirmation
+    assert warned.shown == "ok" and warned.pending and not warned.raised
+    assert warned.message == "warn check (confirming 1/2)"
+    confirmed = watch.observe(_report("warn", pose, 0.3))
+    assert confirmed.shown == "warn" and confirmed.raised and confirmed.message == "warn check"
+    error = watch.observe(_report("error", pose, 0.6))  # error after warn: confirmed anew
+    assert error.shown == "warn" and error.pending
+    back = watch.observe(_report("ok", pose))  # ok and unknown are shown at once
+    assert back.shown == "ok" and back.report.message == "ok check"  # not a second reference
+    assert watch.observe(_report("unknown", pose)).shown == "unknown"
+    assert watch.checks == 7
+
+
+def test_drift_watch_refuses_a_drifting_reference_and_starts_again_on_a_new_calibration():
+    pose = Pose.from_body_rpy_deg(np.zeros(3), [0.0, 5.0, 30.0])
+    watch = DriftWatch(confirm=2)
+    watch.observe(_report("warn", pose, 0.3))  # the first judged check found drift
+    assert watch.referenced and watch.reference is None  # later checks stay absolute
+    assert watch.observe(_report("ok", pose)).report.message == "ok check"
+    watch.observe(_report("warn", pose))
+    watch.new_map()  # new map: a new reference, the streak goes on
+    assert not watch.referenced and watch.streak == ["ok", "warn"]
+    epoch = watch.epoch
+    watch.new_calibration()  # a check that started before this is of the old calibration
+    assert watch.streak == []
+    stale = watch.observe(_report("ok", pose), epoch)
+    assert watch.reference is None and stale.report.message == "ok check"
+    assert watch.observe(_report("ok", pose), watch.epoch).report.message == REFERENCE_MESSAGE
+    absolute = DriftWatch(confirm=1, take_reference=False)
+    assert absolute.observe(_report("ok", pose)).report.message == "ok check"
+    assert absolute.observe(_report("warn", pose)).raised  # confirm 1: raised at once
+    with pytest.raises(ValueError, match="confirm"):
+        DriftWatch(confirm=0)
+
+
+def test_drift_watch_on_the_junction_counts_from_its_reference(junction):
+    """With the real check: the first check of the unchanged image is the reference, the next
+    check of the same image reports exactly no drift (docs/drift.md)."""
+    scene, _, _, _, checker = junction
+    labels = files.read_label_image(scene / "labels.png")
+    watch = DriftWatch()
+    first = watch.check(checker, labels)
+    assert first.report.message == REFERENCE_MESSAGE and watch.reference is not None
+    assert watch.reference.raw_vector is not None and watch.reference.evaluations > 10
+    again = watch.check(checker, labels)
+    assert again.shown == "ok" and again.report.drift_translation_m == 0.0
+    assert again.report.loss_best <= again.report.loss_calibrated

@@ -35,6 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from semcal_ros.engine.drift import DriftChecker, DriftParams
+    from semcal_ros.engine.drift_watch import DriftWatch
     from semcal_ros.io import files, ply
     from semcal_ros.engine.labels import LabelMapping
     from semcal_ros.engine.params import CalibrationParams
@@ -55,13 +56,16 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"CANNOT JUDGE: {' '.join(str(exc).split())}")
         return EXIT_CANNOT_JUDGE
-    reference = None
+    # the monitor's rule (DriftWatch): the reference counts only if it found no drift itself
+    watch = DriftWatch(confirm=1, take_reference=reference_labels is not None)
     if reference_labels is not None:
-        reference = checker.check(reference_labels)
-        if not reference.judged:
-            print(f"reference: cannot judge: {reference.message}")
+        first = watch.check(checker, reference_labels).report
+        if not first.judged:
+            print(f"reference: cannot judge: {first.message}")
             return EXIT_CANNOT_JUDGE
-    report = checker.check(labels, reference=reference)
+        if watch.reference is None:
+            print(f"reference: not used, it shows drift itself ({first.message})")
+    report = watch.check(checker, labels).report
     print(report.summary())
     if report.judged:
         t = report.drift_xyz_m
