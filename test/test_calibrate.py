@@ -134,3 +134,19 @@ def test_cli_unknown_parameter(case, capsys):
     (case / "typo.yaml").write_text(
         "calibrator:\n  ros__parameters:\n    engine:\n      loss: {kindd: l2}\n")
     assert "kindd" in _error_of(args(case, **{"--config": case / "typo.yaml"}), capsys)
+
+
+def test_cli_yaw_search_flag_reaches_the_engine(case, monkeypatch, capsys):
+    """`--yaw-search` sets engine.search.yaw_search for this run (the file's setting otherwise)."""
+    import semcal_ros.engine.search as search
+
+    seen = []
+
+    def record(*a, **kw):
+        seen.append(a[4] if len(a) > 4 else kw["params"])
+        raise ValueError("recorded")
+
+    monkeypatch.setattr(search, "calibrate", record)
+    assert "recorded" in _error_of(args(case) + ["--yaw-search"], capsys)
+    assert "recorded" in _error_of(args(case), capsys)
+    assert [p.search.yaw_search for p in seen] == [True, False]

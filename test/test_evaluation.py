@@ -127,3 +127,26 @@ def test_a_refused_start_counts_as_a_failed_run(demo_scene: Path):
     for run in res.runs:
         assert "no map point in view" in run.error and run.evaluations == 0
         assert run.pose is run.start and run.loss == blind.loss.degenerate_loss
+
+
+def test_cli_start_ranges_and_yaw_search_reach_the_protocol(demo_scene: Path, monkeypatch):
+    """`--start-xyz/--start-pitch/--start-yaw` set the starts' ranges, `--yaw-search` the engine's
+    full-circle heading search (the basin study in docs/engine.md runs through these)."""
+    import semcal_tools.evaluation as evaluation
+    from semcal_ros.cli import main
+
+    seen = []
+
+    def record(folder, loss, protocol, params, *a, **kw):
+        seen.append((protocol, params))
+        raise ValueError("recorded")
+
+    monkeypatch.setattr(evaluation, "evaluate_scene", record)
+    assert main(["evaluate", str(demo_scene), "--runs", "2", "--keep", "1", "--quiet",
+                 "--start-xyz", "0.5", "--start-pitch", "2", "--start-yaw", "180",
+                 "--yaw-search"]) == 1
+    assert main(["evaluate", str(demo_scene), "--runs", "2", "--keep", "1", "--quiet"]) == 1
+    (p1, e1), (p2, e2) = seen
+    assert (p1.noise_xyz_m, p1.noise_pitch_deg, p1.noise_yaw_deg) == (0.5, 2.0, 180.0)
+    assert (p2.noise_xyz_m, p2.noise_pitch_deg, p2.noise_yaw_deg) == (2.5, 5.0, 5.0)
+    assert e1.search.yaw_search and not e2.search.yaw_search

@@ -35,6 +35,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "expected cost under them (default: probabilities.npz beside --labels "
                         "when present; 'none' = not used)")
     p.add_argument("--seed", type=int, default=0, help="seed of the verification starts")
+    p.add_argument("--yaw-search", action="store_true",
+                   help="heading unknown: search the yaw over the full circle first "
+                        "(engine.search.yaw_search; docs/engine.md: how good must the start be)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -89,6 +92,10 @@ def _run(args: argparse.Namespace) -> int:
 
     # everything checkable is checked before the work starts (the same checks as the action)
     params = CalibrationParams.from_file(args.config)
+    if args.yaw_search:
+        from dataclasses import replace
+
+        params = replace(params, search=replace(params.search, yaw_search=True))
     validation.check(validation.output_problems(args.output, "--output")
                      + validation.output_problems(args.overlay, "--overlay")
                      + validation.output_problems(args.loss_curve, "--loss-curve"))

@@ -40,6 +40,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="apply a label-noise model to every scene's labels.png first: legacy, "
                         "network or kitti_espnetv2 (docs/quality.md)")
     p.add_argument("--noise-seed", type=int, default=1, help="seed of --label-noise (default 1)")
+    p.add_argument("--start-xyz", type=float, default=2.5, metavar="M",
+                   help="each start up to this far off the truth per axis (default 2.5 m, the paper)")
+    p.add_argument("--start-pitch", type=float, default=5.0, metavar="DEG",
+                   help="each start's pitch up to this far off (default 5 deg)")
+    p.add_argument("--start-yaw", type=float, default=5.0, metavar="DEG",
+                   help="each start's yaw up to this far off (default 5 deg; 180: heading unknown)")
+    p.add_argument("--yaw-search", action="store_true",
+                   help="search the heading over the full circle first (engine.search.yaw_search)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -57,8 +65,14 @@ def run(args: argparse.Namespace) -> int:
 
     if args.from_json:
         return _table_from_json([Path(p) for p in args.scenes], args.paper)
-    protocol = ProtocolParams(runs=args.runs, keep=args.keep, seed=args.seed)
+    protocol = ProtocolParams(runs=args.runs, keep=args.keep, seed=args.seed,
+                              noise_xyz_m=args.start_xyz, noise_pitch_deg=args.start_pitch,
+                              noise_yaw_deg=args.start_yaw)
     params = CalibrationParams.from_file(args.config)
+    if args.yaw_search:
+        from dataclasses import replace
+
+        params = replace(params, search=replace(params.search, yaw_search=True))
     mapping = LabelMapping.from_yaml(args.label_mapping) if args.label_mapping else LabelMapping()
     folders = [Path(s) for s in args.scenes]
     for folder in folders:
