@@ -1,6 +1,7 @@
 """Map building: filters, pose stream, grouped multiway ICP, the streaming builder, the command."""
 
 import subprocess
+import time
 import sys
 from pathlib import Path
 
@@ -594,3 +595,65 @@ def test_placed_map_uses_the_time_field_and_keeps_labels(world):
     dist, idx = cKDTree(world.xyz).query(on_world)
     assert np.median(dist) < 0.03
     assert np.mean(cloud.label == world.label[idx]) > 0.95
+
+
+# --- the live node keeps up, or says it does not -----------------------------------------
+
+@pytest.mark.ros
+def test_map_builder_node_says_when_it_falls_behind(tmp_path):
+    """map_builder over DDS with a per-scan budget it cannot meet (1 microsecond): /diagnostics
+    warns that it falls behind the lidar, with the amortised seconds per scan it measured."""
+    rclpy = pytest.importorskip("rclpy")
+    from geometry_msgs.msg import PoseStamped
+    from ros_helpers import RosGraph, spin_until
+    from sensor_msgs.msg import PointCloud2
+
+    from semcal_ros.ros import conversions as conv
+    from semcal_ros.ros import qos
+    from semcal_ros.ros.client import DiagnosticsWatcher
+
+    with RosGraph(tmp_path) as graph:
+        proc = graph.start_node("map_builder", params={
+            "mapping.icp": True, "mapping.remove_dynamic": False, "publish_period": 0.5,
+            "scan_budget": 1e-6, "budget_window": 5})
+        ctx = graph.context()
+        node = rclpy.create_node("feed", context=ctx)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        try:
+            scans = node.create_publisher(PointCloud2, "/scan", qos.reliable(20))
+            poses = node.create_publisher(PoseStamped, "/pose", qos.reliable(50))
+            watcher = DiagnosticsWatcher(node)
+            proc.wait_for_log("ready", 60)
+            spin_until(executor, lambda: scans.get_subscription_count() > 0
+                       and poses.get_subscription_count() > 0, 30, "the map builder")
+            world = make_world(length=12.0, seed=0)
+            stamp, sent = 1000.0, 0
+
+            def behind() -> bool:
+                return "falling behind" in watcher.get("map_builder").get("message", "")
+
+            deadline = time.monotonic() + 90
+            while not behind():  # scans (and their poses) until the warning comes
+                assert time.monotonic() < deadline, f"no warning: {watcher.get('map_builder')}"
+                pose = _pose(0.5 * sent, 0.0)
+                pose[2, 3] = 1.8
+                msg = PoseStamped(header=conv.make_header("map", stamp))
+                msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = pose[:3, 3]
+                msg.pose.orientation.w = 1.0
+                poses.publish(msg)
+                scans.publish(conv.cloud_to_pointcloud2(
+                    scan_from(world, pose, sent), conv.make_header("lidar", stamp),
+                    extra_fields=False))
+                stamp, sent = stamp + 0.1, sent + 1
+                end = time.monotonic() + 0.3
+                while time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.05)
+            diag = watcher.get("map_builder")
+            assert diag["level"] == "1"  # WARN
+            assert float(diag["seconds_per_scan"]) > float(diag["scan_budget"]) == 1e-6
+            assert int(diag["scans_accepted"]) >= 5
+            assert proc.running() and "Traceback" not in proc.log()
+        finally:
+            executor.shutdown()
+            node.destroy_node()

@@ -28,6 +28,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,6 +68,9 @@ class MapBuilderNodeParams:
     jump_confirm: int = 3  # messages behind in a row that make a jump (fewer: strays, dropped)
     save_path: str = "map.ply"  # default file of ~/save_map
     diagnostics_period: float = 1.0  # s (0: off)
+    scan_budget: float = 0.1  # s of work per scan, amortised, to keep up with the lidar (10 Hz:
+    # 0.1); more over the last ``budget_window`` scans is a WARN (falling behind). 0: no check
+    budget_window: int = 50  # scans the amortised time is taken over
     mapping: MapBuildParams = field(default_factory=MapBuildParams)
 
     def __post_init__(self) -> None:
@@ -74,6 +78,9 @@ class MapBuilderNodeParams:
             raise ValueError("lidar_extrinsic must be [x, y, z, qx, qy, qz, qw]")
         if self.queue_size < 1 or self.publish_period <= 0:
             raise ValueError("queue_size must be >= 1 and publish_period > 0")
+        if self.scan_budget < 0 or self.budget_window < 1:
+            raise ValueError(f"scan_budget must be >= 0 s and budget_window >= 1, got "
+                             f"{self.scan_budget}, {self.budget_window}")
         if not (self.time_jump > 0 and self.jump_confirm >= 1):
             raise ValueError(f"time_jump must be > 0 s and jump_confirm >= 1, got "
                              f"{self.time_jump}, {self.jump_confirm}")
@@ -83,6 +90,31 @@ class MapBuilderNodeParams:
         matrix = np.eye(4)
         matrix[:3, :3], matrix[:3, 3] = pose.rotation, pose.translation
         return matrix
+
+
+class WorkClock:
+    """The worker's busy seconds per scan over the last ``window`` scans, amortised: the time of
+    each scan (conversion, de-skew, registration when a group completes) plus the publications
+    and resets between scans, charged to the next scan. A live lidar at 10 Hz is kept up with
+    while this stays under 0.1 s."""
+
+    def __init__(self, window: int) -> None:
+        self.samples: deque[float] = deque(maxlen=window)
+        self.pending = 0.0  # work since the last scan (publications)
+
+    def charge(self, seconds: float) -> None:
+        self.pending += seconds
+
+    def scan(self, seconds: float) -> None:
+        self.samples.append(seconds + self.pending)
+        self.pending = 0.0
+
+    def clear(self) -> None:
+        self.samples.clear()
+        self.pending = 0.0
+
+    def per_scan(self) -> float:
+        return sum(self.samples) / len(self.samples) if self.samples else 0.0
 
 
 @dataclass
@@ -117,6 +149,7 @@ class MapBuilderNode(Node):
             self.opts.queue_size, self.opts.mapping.pose_tolerance,
             f"'{self.resolve_topic_name('odom')}' or '{self.resolve_topic_name('pose')}'")
         self.published = (0, 0)  # (points, scans) of the last map published
+        self.clock = WorkClock(self.opts.budget_window)  # the worker's seconds per scan
 
         overrides = qos.overridable()
         inputs = MutuallyExclusiveCallbackGroup()
@@ -253,6 +286,7 @@ class MapBuilderNode(Node):
             if stamp < span[0] - self.opts.mapping.pose_tolerance:
                 self.counts.dropped_no_pose += 1  # older than every pose kept
                 continue
+            started = time.perf_counter()
             try:
                 cloud = conv.pointcloud2_to_cloud(msg)
                 if not np.any(np.all(np.isfinite(cloud.xyz), axis=1)):
@@ -268,12 +302,14 @@ class MapBuilderNode(Node):
             except ValueError as exc:  # a message whose data does not match its layout
                 self._rejected("fields", f"scan ignored: {exc}")
                 continue
+            self.clock.scan(time.perf_counter() - started)
             self._last_stamp = stamp
             self.counts.accepted += 1
             self._dirty = True
 
     def _reset_builder(self) -> None:
         self.builder.reset()
+        self.clock.clear()
         self._last_stamp = None
         self.counts.resets += 1
         self._dirty = True
@@ -283,6 +319,7 @@ class MapBuilderNode(Node):
         if not (self._dirty or force) or (not force and now - self._last_publish
                                           < self.opts.publish_period):
             return
+        started = time.perf_counter()
         with self._builder_lock:
             cloud = self.builder.current_map()
             scans = self.builder.scan_count
@@ -291,6 +328,7 @@ class MapBuilderNode(Node):
         self.map_pub.publish(conv.cloud_to_pointcloud2(cloud, header, extra_fields=False))
         self._last_publish = now
         self.published = (len(cloud), scans)
+        self.clock.charge(time.perf_counter() - started)
 
     # --- services ---------------------------------------------------------------------------
     def _on_save(self, request: SaveMap.Request, response: SaveMap.Response) -> SaveMap.Response:
@@ -340,10 +378,18 @@ class MapBuilderNode(Node):
             "map_scans": self.published[1],
             "poses": len(self.builder.poses), "scans_deskewed": self.builder.deskewed,
             "last_error": self.last_error or "none",
+            "seconds_per_scan": round(self.clock.per_scan(), 4),
+            "scan_budget": self.opts.scan_budget,
         }
         values.update({f"rejected.{k}": v for k, v in c.rejected.items()})
         if waiting:
             return Level.WARN, waiting, values
+        budget, spent = self.opts.scan_budget, self.clock.per_scan()
+        if budget > 0 and spent > budget and len(self.clock.samples) >= min(
+                5, self.opts.budget_window):
+            return Level.WARN, (f"falling behind the lidar: {spent:.3f} s of work per scan over "
+                                f"the last {len(self.clock.samples)} scans (budget "
+                                f"{budget:.3f} s); {queued} queued"), values
         if c.received and not c.accepted:
             return Level.WARN, self.last_error or "no scan accepted yet (waiting for poses?)", \
                 values
