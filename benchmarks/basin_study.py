@@ -1,0 +1,144 @@
+"""How good must the start be? The basin of the default procedure on every catalogue layout.
+
+For each layout scene and each start condition (translation / yaw / pitch error bounds, with or
+without the full-circle yaw search) runs ``semcal evaluate --runs N --keep N`` (every start
+counted) under the shared heavy-job lock, one condition at a time, and collects per condition:
+the share of starts within 5 cm & 0.1 deg, the mean error and the seconds per run. Results are
+appended to a JSON-lines file so that an interrupted study resumes; ``--plot`` draws the table.
+
+Usage:
+  python benchmarks/basin_study.py --scenes DIR [DIR ...] --runs 4 --out basin.jsonl
+  python benchmarks/basin_study.py --out basin.jsonl --table --plot docs/img/basin.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+LOCK = "/tmp/semcal-heavy.lock"
+#: (label, start metres, start yaw deg, start pitch deg, yaw search)
+CONDITIONS = [
+    ("0.5 m / 5 / 2 deg", 0.5, 5.0, 2.0, False),
+    ("2.5 m / 5 / 5 deg (paper)", 2.5, 5.0, 5.0, False),
+    ("5 m / 5 / 10 deg", 5.0, 5.0, 10.0, False),
+    ("2.5 m / 30 / 5 deg", 2.5, 30.0, 5.0, False),
+    ("2.5 m / 30 / 5 deg, yaw search", 2.5, 30.0, 5.0, True),
+    ("2.5 m / 180 / 5 deg, yaw search", 2.5, 180.0, 5.0, True),
+    ("2.5 m / 5 / 5 deg, yaw search", 2.5, 5.0, 5.0, True),
+]
+
+
+def run_condition(scene: Path, cond: tuple, runs: int, seed: int) -> list[dict]:
+    label, xyz, yaw, pitch, yaw_search = cond
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "r.json"
+        cmd = ["flock", LOCK, sys.executable, "-m", "semcal_ros.cli", "evaluate", str(scene),
+               "--runs", str(runs), "--keep", str(runs), "--seed", str(seed), "--quiet",
+               "--start-xyz", str(xyz), "--start-yaw", str(yaw), "--start-pitch", str(pitch),
+               "--json", str(out)] + (["--yaw-search"] if yaw_search else [])
+        if (scene / "calibrator.yaml").is_file():
+            cmd += ["--config", str(scene / "calibrator.yaml")]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{scene}: {label}: {proc.stderr.strip()[-300:]}")
+        data = json.loads(out.read_text())
+    load = float(Path("/proc/loadavg").read_text().split()[0])
+    return [{"scene": scene.name, "condition": label, "yaw_search": yaw_search,
+             "t_m": r["translation_error_m"], "r_deg": r["rotation_error_deg"],
+             "seconds": r["seconds"], "verdict": (r.get("quality") or {}).get("verdict", ""),
+             "error": r.get("error", ""), "load": load}
+            for res in data["results"] for r in res["runs"]]
+
+
+def table(rows: list[dict]) -> str:
+    scenes = sorted({r["scene"] for r in rows})
+    lines = ["| start (xyz / yaw / pitch) | " + " | ".join(scenes) + " | all: within 5 cm & 0.1 deg "
+             "| mean error | s/run |", "|---" * (len(scenes) + 4) + "|"]
+    for label, *_ in CONDITIONS:
+        sel = [r for r in rows if r["condition"] == label]
+        if not sel:
+            continue
+        cells = []
+        for s in scenes:
+            c = [r for r in sel if r["scene"] == s]
+            ok = sum(r["t_m"] <= 0.05 and r["r_deg"] <= 0.1 for r in c)
+            cells.append(f"{ok}/{len(c)}" if c else "-")
+        ok = sum(r["t_m"] <= 0.05 and r["r_deg"] <= 0.1 for r in sel)
+        t = np.mean([r["t_m"] for r in sel]) * 100
+        rd = np.mean([r["r_deg"] for r in sel])
+        sec = np.median([r["seconds"] for r in sel])
+        lines.append(f"| {label} | " + " | ".join(cells) +
+                     f" | {ok}/{len(sel)} ({100 * ok / len(sel):.0f} %) | {t:.1f} cm / {rd:.3f} deg"
+                     f" | {sec:.1f} |")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [c[0] for c in CONDITIONS if any(r["condition"] == c[0] for r in rows)]
+    scenes = sorted({r["scene"] for r in rows})
+    fig, ax = plt.subplots(figsize=(9, 3.6))
+    width = 0.8 / max(len(scenes), 1)
+    for k, s in enumerate(scenes):
+        share = []
+        for label in labels:
+            c = [r for r in rows if r["condition"] == label and r["scene"] == s]
+            share.append(100 * np.mean([r["t_m"] <= 0.05 and r["r_deg"] <= 0.1 for r in c]) if c else 0)
+        ax.bar(np.arange(len(labels)) + k * width, share, width, label=s)
+    ax.set_xticks(np.arange(len(labels)) + 0.4 - width / 2)
+    ax.set_xticklabels(labels, rotation=20, ha="right", fontsize=7)
+    ax.set_ylabel("starts within 5 cm & 0.1 deg, %")
+    ax.set_ylim(0, 105)
+    ax.axhline(90, color="grey", lw=0.8, ls="--")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="*", default=[], help="scene folders (one per layout)")
+    ap.add_argument("--runs", type=int, default=4, help="starts per scene and condition")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--conditions", default="", help="comma list of condition indices (default all)")
+    ap.add_argument("--out", required=True, help="JSON lines, appended (resumes)")
+    ap.add_argument("--table", action="store_true")
+    ap.add_argument("--plot", help="PNG of the shares per condition and layout")
+    a = ap.parse_args()
+    out = Path(a.out)
+    rows = [json.loads(x) for x in out.read_text().splitlines()] if out.is_file() else []
+    chosen = [CONDITIONS[int(i)] for i in a.conditions.split(",")] if a.conditions else CONDITIONS
+    for scene in map(Path, a.scenes):
+        for cond in chosen:
+            if any(r["scene"] == scene.name and r["condition"] == cond[0] for r in rows):
+                continue
+            new = run_condition(scene, cond, a.runs, a.seed)
+            with out.open("a") as f:
+                for r in new:
+                    f.write(json.dumps(r) + "\n")
+            rows += new
+            ok = sum(r["t_m"] <= 0.05 and r["r_deg"] <= 0.1 for r in new)
+            print(f"{scene.name}: {cond[0]}: {ok}/{len(new)} within 5 cm & 0.1 deg, "
+                  f"median {np.median([r['seconds'] for r in new]):.1f} s/run, load {new[0]['load']:.1f}",
+                  flush=True)
+    if a.table or not a.scenes:
+        print(table(rows))
+    if a.plot:
+        plot(rows, Path(a.plot))
+        print(f"plot: {a.plot}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
