@@ -22,5 +22,10 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/semcal bench
 
+# ruff on the whole tree (rules in ruff.toml), mypy on the engine (settings in setup.cfg)
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy semcal_ros/engine
+
 clean-venv:
 	rm -rf $(VENV)
