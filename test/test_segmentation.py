@@ -405,3 +405,69 @@ def test_cli_errors_are_one_clear_line(tmp_path, example_models, capsys):
         assert main(argv) == 1
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1, err
+
+
+# ---------------------------------------------------------------- class probabilities
+
+def test_probabilities_are_the_softmax_in_train_ids_aligned_with_the_labels(tmp_path):
+    """Model classes in another order, one ignored (None): its share is dropped, the rest
+    renormalised; a 2x larger image gets them by nearest neighbour, like the labels."""
+    from semcal_ros.segmentation.probabilities import probabilities_from_logits
+
+    segmenter = image_segmenter(tmp_path, image_config())
+    rgb, expected = quadrants(2 * H, 2 * W)
+    labels, probs = segmenter.segment_with_probabilities(rgb, "rgb8")
+    np.testing.assert_array_equal(labels, expected)
+    assert probs.shape == (2 * H, 2 * W, 19) and probs.dtype == np.float32
+    np.testing.assert_allclose(probs.sum(axis=2), 1.0, atol=1e-5)
+    labelled = labels != INVALID
+    np.testing.assert_array_equal(probs.argmax(axis=2)[labelled], labels[labelled])
+    # against numpy at the model's own resolution: softmax over the 4 model classes, class 3
+    # (None) dropped, the three others moved to their trainIds and renormalised
+    logits = segmenter.infer(segmenter.preprocess(quadrants()[0], "rgb8"))
+    e = np.exp(logits[0] - logits[0].max(axis=0))
+    soft = e / e.sum(axis=0)
+    kept = soft[:3] / soft[:3].sum(axis=0)
+    ref = np.zeros((19, H, W))
+    for model_class, name in enumerate(("building", "vegetation", "sky")):
+        ref[CITYSCAPES_ID[name]] = kept[model_class]
+    mine = probabilities_from_logits(logits, segmenter.lut)
+    np.testing.assert_allclose(mine, ref.transpose(1, 2, 0), atol=1e-5)
+    # two model classes into one trainId add up
+    lut = np.array([CITYSCAPES_ID["road"], CITYSCAPES_ID["road"], 10, INVALID], np.uint8)
+    merged = probabilities_from_logits(logits, lut)
+    np.testing.assert_allclose(merged[:, :, 0], kept[0] + kept[1], atol=1e-5)
+
+
+def test_probability_files_and_bytes_round_trip_and_bad_files_are_one_line(tmp_path):
+    from semcal_ros.segmentation.probabilities import (
+        from_bytes, read_probabilities, to_bytes, write_probabilities)
+
+    rng = np.random.default_rng(3)
+    raw = rng.random((5, 7, 19)).astype(np.float32)
+    probs = raw / raw.sum(axis=2, keepdims=True)
+    path = write_probabilities(tmp_path / "p.npz", probs)
+    back = read_probabilities(path, (5, 7))
+    assert back.dtype == np.float16 and back.shape == (5, 7, 19)
+    np.testing.assert_allclose(back, probs, atol=5e-4)  # float16: 11-bit mantissa
+    as_bytes = to_bytes(probs)
+    assert as_bytes.dtype == np.uint8
+    np.testing.assert_allclose(from_bytes(as_bytes), probs, atol=0.5 / 255 + 1e-6)
+
+    np.savez(tmp_path / "other.npz", labels=np.zeros((5, 7)))
+    np.savez(tmp_path / "f32.npz", probabilities=probs)
+    (tmp_path / "garbage.npz").write_bytes(b"nope")
+    for name, size, message in [("other.npz", None, "no array 'probabilities'"),
+                                ("f32.npz", None, "float32, the contract is float16"),
+                                ("garbage.npz", None, "not a readable .npz"),
+                                ("p.npz", (6, 7), "probabilities are 7x5, the label image 7x6")]:
+        with pytest.raises(ValueError, match=message):
+            read_probabilities(tmp_path / name, size)
+    with pytest.raises(ValueError, match=r"shape \(H, W, 19\)"):
+        write_probabilities(tmp_path / "x.npz", probs[:, :, :18])
+
+
+def test_probabilities_need_logits(tmp_path):
+    segmenter = image_segmenter(tmp_path, image_config(output="class_map"), argmax=True)
+    with pytest.raises(ValueError, match="class probabilities need a model with output: logits"):
+        segmenter.segment_with_probabilities(quadrants()[0], "rgb8")

@@ -64,6 +64,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                      help="labels.png from the first scan's point labels projected through the "
                           "true extrinsic (the ideal-label reference, not a segmenter)")
     p.add_argument("--model-config", type=Path, help="model config YAML of --model")
+    p.add_argument("--probabilities", action="store_true",
+                   help="with --model: also write the class probabilities as "
+                        "SCENE/probabilities.npz (float16 H x W x 19, trainIds 0-18)")
     p.add_argument("--out", required=True, type=Path, help="scene folder to write")
     p.add_argument("--remove-vehicles", action="store_true",
                    help="remove every vehicle from the map (default: parked ones stay and "
@@ -96,6 +99,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--model needs --model-config")
     if args.model is None and args.model_config is not None:
         raise ValueError("--model-config is only used with --model")
+    if args.probabilities and args.model is None:
+        raise ValueError("--probabilities needs --model (labels from a file or the truth have "
+                         "no class probabilities)")
     for name in ("d_max", "voxel", "label_distance"):
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be positive, got "
@@ -200,6 +206,11 @@ def label_image_source(args: argparse.Namespace, inputs):
 
         segmenter = ImageSegmenter.from_files(args.model, args.model_config,
                                               RunnerParams(threads=args.threads))
+        if args.probabilities:
+            def with_probabilities(rgb):
+                labels, probabilities = segmenter.segment_with_probabilities(rgb, "rgb8")
+                return labels, f"model {args.model}", probabilities
+            return with_probabilities
         return lambda rgb: (segmenter.segment(rgb, "rgb8"), f"model {args.model}")
     if args.labels is not None:
         labels = files.read_label_image(args.labels)

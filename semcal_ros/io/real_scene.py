@@ -379,7 +379,9 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     """Write the scene folder ``out`` (docs/CONTRACTS.md) for one camera image and its scans.
 
     ``label_image(rgb)`` returns the trainId label image and where it came from; it is called
-    before anything is written, so a bad label image leaves no folder behind.
+    before anything is written, so a bad label image leaves no folder behind. A third item, when
+    not None, is the segmenter's (H, W, 19) class probabilities: written as
+    ``probabilities.npz`` (docs/CONTRACTS.md).
     """
     from semcal_ros.engine.pose import perturbed_initial
 
@@ -391,7 +393,8 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
                          f"{camera.width}x{camera.height}")
     if inputs.t_cam_lidar is None and inputs.initial is None:
         raise ValueError("no extrinsic and no initial pose: give one of them")
-    labels, labels_source = label_image(rgb)
+    labels, labels_source, *more = label_image(rgb)
+    probabilities = more[0] if more else None
     if labels.shape != (camera.height, camera.width):
         raise ValueError(f"label image is {labels.shape[1]}x{labels.shape[0]}, the camera "
                          f"image {camera.width}x{camera.height}")
@@ -430,6 +433,10 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
     write_scan_poses(scan_dir / "poses.yaml", names, np.array(inputs.stamps),
                      np.array(placed.poses), extra={"sources": list(inputs.scan_names)})
     files.write_label_image(out / "labels.png", labels)
+    if probabilities is not None:
+        from semcal_ros.segmentation.probabilities import write_probabilities
+
+        write_probabilities(out / "probabilities.npz", probabilities)
     files.write_rgb_image(out / "image.png", rgb)
     files.write_camera_info(out / "camera_info.yaml", camera, name=options.camera_name)
     if truth is not None:
@@ -447,6 +454,7 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
         "cloud_labels": inputs.cloud_labels,
         "cloud_label_notes": inputs.label_notes,
         "labels": labels_source,
+        **({"probabilities": "probabilities.npz"} if probabilities is not None else {}),
         "ground_truth": truth is not None,
         "map_points": report.map_points,
         "scan_points": report.scan_points,

@@ -23,6 +23,7 @@ from semcal_ros.engine.labels import INVALID, colorize
 from semcal_ros.segmentation.decode import labels_from_class_map, labels_from_logits
 from semcal_ros.segmentation.model_config import ImageModelConfig, load_model_config
 from semcal_ros.segmentation.onnx_runner import OnnxRunner, RunnerParams
+from semcal_ros.segmentation.probabilities import probabilities_from_logits
 
 #: encoding -> (channels, colour order of the first three channels)
 ENCODINGS: dict[str, tuple[int, str]] = {
@@ -60,6 +61,18 @@ class ImageSegmenter:
         image = np.asarray(image)
         tensor = self.preprocess(image, encoding)
         return self.postprocess(self.infer(tensor), image.shape[:2])
+
+    def segment_with_probabilities(self, image: np.ndarray, encoding: str = "rgb8"
+                                   ) -> tuple[np.ndarray, np.ndarray]:
+        """The labels of :meth:`segment` and, pixel-aligned with them, (H, W, 19) float32
+        trainId probabilities (:mod:`semcal_ros.segmentation.probabilities`)."""
+        if self.config.output != "logits":
+            raise ValueError(f"{self.runner.path}: the model outputs a class map; class "
+                             "probabilities need a model with output: logits")
+        image = np.asarray(image)
+        logits = self.infer(self.preprocess(image, encoding))
+        labels = self.postprocess(logits, image.shape[:2])
+        return labels, probabilities_from_logits(logits, self.lut, image.shape[:2])
 
     def preprocess(self, image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
         """Checked image -> (1, 3, input_height, input_width) float32 network input."""
