@@ -82,6 +82,45 @@ def test_scene_follows_the_contract_and_ground_truth_is_p2_tr(truth_scene):
     assert 0 < np.linalg.norm(initial.translation - truth.translation) < 2.0
 
 
+def test_scene_map_is_in_the_lidar_frame_of_the_frame_s_own_scan(truth_scene):
+    """Issue 26 item 2: the camera at frame 0 is tied to scan 0, so scan 0 stays where its sensor
+    measured it (identity pose) and ICP moved the others around it (the builder's group
+    anchoring, which keeps the mean pose, had moved scan 0 by 38 cm on scans 0-5)."""
+    from semcal_ros.io.scene_scans import open_scene_scans
+
+    out, _ = truth_scene
+    scans = open_scene_scans(out)
+    np.testing.assert_allclose(scans.poses[0], np.eye(4), atol=1e-9)
+    calib = kitti.read_calib(KITTI / "calib.txt")
+    given = kitti.lidar_poses(kitti.read_poses(KITTI / "poses.txt"), calib["Tr"])[:4]
+    moved = [np.linalg.norm(scans.poses[i][:3, 3] - given[i][:3, 3]) for i in (1, 2, 3)]
+    assert 0.02 < min(moved) and max(moved) < 1.0, moved  # ICP ran, within reason
+
+
+def test_placed_map_keeps_an_inner_scan_fixed_on_real_scans():
+    """The same for a frame in the middle of its scans (frame 2 of 0-3; the data has frame 0's
+    image only, so at the placement level): poses relative to scan 2, scan 2 is the anchor and
+    keeps the identity, its points are as recorded (de-skew moves the points ahead of the car by
+    millimetres), and the map holds them."""
+    from scipy.spatial import cKDTree
+
+    from semcal_ros.mapping.placement import placed_map
+
+    seq = kitti.open_sequence(KITTI)
+    clouds = [seq.scan(i) for i in range(4)]
+    poses = np.linalg.inv(seq.poses[2]) @ seq.poses[:4]
+    placed = placed_map(clouds, list(poses), [0.1 * i for i in range(4)], 60.0, 0.1)
+    np.testing.assert_allclose(placed.poses[2], np.eye(4), atol=1e-9)
+    moved = [np.linalg.norm(placed.poses[i][:3, 3] - poses[i][:3, 3]) for i in (0, 1, 3)]
+    assert 0.02 < min(moved) and max(moved) < 1.0, moved
+    raw = clouds[2].xyz
+    ahead = (raw[:, 0] > 5) & (raw[:, 0] < 40) & (np.abs(raw[:, 1]) < 0.3 * raw[:, 0])
+    shift = np.linalg.norm(placed.scans[2].xyz[ahead] - raw[ahead], axis=1)
+    assert np.median(shift) < 0.02
+    dist, _ = cKDTree(placed.map.xyz).query(raw[ahead], workers=1)
+    assert np.median(dist) < 0.06  # within the 0.1 m voxel grid of the map
+
+
 def test_unlabelled_scan_takes_labels_from_its_labelled_neighbours(truth_scene):
     out, printed = truth_scene
     assert "scan 3: no labels; labelled from the nearest labelled point within 0.3 m" in printed
