@@ -186,8 +186,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{n} scans ({len(result.skipped)} skipped): {result.points_in} points in, "
           f"{result.points_kept} after range filter, voxel grid and dynamic removal; "
           f"map {len(result.map)} points -> {output}")
-    print(f"seconds: total {time.perf_counter() - start:.1f} (read {t['load']:.1f}, filter "
-          f"{t['filter']:.1f}, ICP {t['icp']:.1f}, merge {t['merge']:.1f})"
+    stages = ", ".join(f"{k} {t[k]:.1f}" for k in ("load", "deskew", "filter", "grids",
+                                                   "covariances", "icp", "merge") if k in t)
+    print(f"seconds: total {time.perf_counter() - start:.1f} ({stages})"
           + ("" if params.icp else "; ICP off"))
     if params.icp:
         pairs = result.pairs

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
@@ -90,6 +91,20 @@ class ScanReport:
 
 
 @dataclass
+class PreparedScan:
+    """A scan ready to join the map (:meth:`StreamingMapBuilder.prepare_scan`)."""
+
+    scan_id: str
+    stamp: float
+    lidar: np.ndarray  # 4x4 lidar pose in the map frame, as given
+    points_in: int
+    kept: LabelledCloud  # map frame: de-skewed, filtered, voxel grid with majority labels
+    reg: RegistrationCloud | None  # ICP grids (None with ICP off)
+    deskewed: bool
+    seconds: dict[str, float]  # per stage
+
+
+@dataclass
 class MapBuildResult:
     """The map and what building it did."""
 
@@ -120,9 +135,28 @@ class MapBuildResult:
 class _Node:
     """A cloud waiting in the stack: its map-frame points and the scans it holds."""
 
-    cloud: LabelledCloud
+    pending: LabelledCloud | Future  # a merged group's cloud is voxelized in the merge thread
     scans: np.ndarray  # indices of accepted scans
     reg: RegistrationCloud | None = None  # what ICP works on (None with ICP off)
+
+    @property
+    def cloud(self) -> LabelledCloud:
+        if isinstance(self.pending, Future):
+            self.pending = self.pending.result()
+        return self.pending
+
+
+def _merged_cloud(nodes: list[_Node], corrections: list[np.ndarray], voxel: float,
+                  seconds: list[float] | None = None) -> LabelledCloud:
+    """The voxel grid (majority labels) of the nodes' clouds moved by their corrections; the
+    time it took is appended to ``seconds``."""
+    start = time.perf_counter()
+    parts = [filters.transform(n.cloud, c) if not np.allclose(c, np.eye(4), atol=1e-12)
+             else n.cloud for n, c in zip(nodes, corrections)]
+    cloud = filters.voxel_downsample(filters.concatenate(parts), voxel)
+    if seconds is not None:
+        seconds.append(time.perf_counter() - start)
+    return cloud
 
 
 class StreamingMapBuilder:
@@ -139,6 +173,7 @@ class StreamingMapBuilder:
             dynamic_ids = (mapping or LabelMapping()).dynamic_kitti_ids()
         self.dynamic_ids = np.asarray(dynamic_ids, dtype=np.uint16)
         self.poses = PoseStream(tolerance=self.params.pose_tolerance)
+        self._merger: ThreadPoolExecutor | None = None  # voxel grids of merged groups
         self.reset()
 
     # --- state ---------------------------------------------------------------------------
@@ -159,6 +194,7 @@ class StreamingMapBuilder:
         # and pose graphs), merge (grids and voxel grid of merged groups)
         self.timings = {"deskew": 0.0, "filter": 0.0, "grids": 0.0, "covariances": 0.0,
                         "icp": 0.0, "merge": 0.0}
+        self._merge_seconds: list[float] = []  # voxel grids done in the merge thread
         self.points_in = 0
         self.points_kept = 0
         self.deskewed = 0  # scans motion-compensated
@@ -196,24 +232,30 @@ class StreamingMapBuilder:
         Raises :class:`ScanRejected` with a message naming the problem (no x/y/z, no pose for its
         time, out of time order, empty after filtering, map full); nothing is changed then.
         """
-        t0 = time.perf_counter()
         self._offered += 1
         scan_id = str(self._offered - 1) if scan_id is None else str(scan_id)
         try:
-            return self._add(cloud, pose, float(stamp), scan_id, t0, twist)
+            return self.add_prepared(self.prepare_scan(cloud, pose, stamp, scan_id, twist))
         except ScanRejected as exc:
             self.skipped.append((scan_id, str(exc)))
             raise
 
-    def _add(self, cloud: Any, pose: Any, stamp: float, scan_id: str, t0: float,
-             twist: np.ndarray | None = None) -> ScanReport:
+    def prepare_scan(self, cloud: Any, pose: Any = None, stamp: float = 0.0,
+                     scan_id: str = "", twist: np.ndarray | None = None,
+                     path_xy: np.ndarray | None = None, use_previous: bool = True
+                     ) -> PreparedScan:
+        """The per-scan half of :meth:`add_scan` (checks, de-skew, filters, ICP grids), which
+        changes nothing: :func:`build_map` runs it for the next scan in a second thread while
+        this one registers (its compiled kernels and numpy release the GIL).
+
+        ``path_xy``: the vehicle path for dynamic removal in a corridor (default: the accepted
+        scans' and this one); ``use_previous`` False: no velocity from the previous accepted
+        scan (whose pose another thread may be adding)."""
+        t0 = time.perf_counter()
         p = self.params
+        stamp = float(stamp)
         if self.is_full:
             raise ScanRejected(f"scan {scan_id}: map is full ({p.max_scans} scans)", "full")
-        if self._stamps and stamp < self._stamps[-1]:
-            raise ScanRejected(f"scan {scan_id} at {stamp:.6f} s is older than the previous "
-                               f"scan ({self._stamps[-1]:.6f} s); scans must be in time order",
-                               "order")
         try:
             scan = filters.as_scan_cloud(cloud, f"scan {scan_id}")
         except ValueError as exc:
@@ -224,32 +266,53 @@ class StreamingMapBuilder:
             raise ScanRejected(f"scan {scan_id}: {exc}", "pose") from None
         lidar = vehicle @ self.extrinsic
         t1 = time.perf_counter()
-        xyz, label = self._prepare(scan, stamp, lidar, pose is None, twist, scan_id)
+        xyz, label, deskewed = self._prepare(scan, stamp, lidar, pose is None, twist, scan_id,
+                                             use_previous)
         t2 = time.perf_counter()
-        kept = self._filter_scan(xyz, label, lidar)
+        if path_xy is None:
+            path_xy = np.vstack([self.path_xy(), lidar[None, :2, 3]])
+        kept = self._filter_scan(xyz, label, path_xy)
         if len(kept) == 0:
             raise ScanRejected(f"scan {scan_id}: no points left after filtering ({len(scan)} in, "
                                f"d_max {p.d_max} m"
                                + (f", crop {p.crop_radius} m" if p.crop_radius > 0 else "") + ")",
                                "empty")
-        index = len(self._ids)
-        self._ids.append(scan_id)
-        self._stamps.append(stamp)
-        self._priors.append(lidar)
-        self._corrections.append(np.eye(4))
-        self.points_in += len(scan)
-        self.points_kept += len(kept)
         t3 = time.perf_counter()
         reg = (registration_cloud(kept.xyz, lidar[:3, 3], p.registration) if p.icp else None)
         t4 = time.perf_counter()
-        self.timings["deskew"] += t2 - t1
-        self.timings["filter"] += (t1 - t0) + (t3 - t2)
-        self.timings["grids"] += t4 - t3
-        merges = self._push(_Node(kept, np.array([index]), reg), 0)
-        return ScanReport(index, len(scan), len(kept), merges, time.perf_counter() - t0)
+        return PreparedScan(scan_id, stamp, lidar, len(scan), kept, reg, deskewed,
+                            {"deskew": t2 - t1, "filter": (t1 - t0) + (t3 - t2),
+                             "grids": t4 - t3})
+
+    def add_prepared(self, prepared: PreparedScan) -> ScanReport:
+        """The map half of :meth:`add_scan`: the scan joins the stack (groups that it completes
+        are registered and merged). Raises :class:`ScanRejected` (map full, out of time order);
+        nothing is changed then."""
+        t0 = time.perf_counter()
+        p, scan_id, stamp = self.params, prepared.scan_id, prepared.stamp
+        if self.is_full:
+            raise ScanRejected(f"scan {scan_id}: map is full ({p.max_scans} scans)", "full")
+        if self._stamps and stamp < self._stamps[-1]:
+            raise ScanRejected(f"scan {scan_id} at {stamp:.6f} s is older than the previous "
+                               f"scan ({self._stamps[-1]:.6f} s); scans must be in time order",
+                               "order")
+        index = len(self._ids)
+        self._ids.append(scan_id)
+        self._stamps.append(stamp)
+        self._priors.append(prepared.lidar)
+        self._corrections.append(np.eye(4))
+        self.points_in += prepared.points_in
+        self.points_kept += len(prepared.kept)
+        self.deskewed += int(prepared.deskewed)
+        for key, seconds in prepared.seconds.items():
+            self.timings[key] += seconds
+        merges = self._push(_Node(prepared.kept, np.array([index]), prepared.reg), 0)
+        return ScanReport(index, prepared.points_in, len(prepared.kept), merges,
+                          sum(prepared.seconds.values()) + time.perf_counter() - t0)
 
     def _prepare(self, scan: LabelledCloud, stamp: float, lidar: np.ndarray, from_stream: bool,
-                 twist: np.ndarray | None, scan_id: str) -> tuple[np.ndarray, np.ndarray | None]:
+                 twist: np.ndarray | None, scan_id: str, use_previous: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray | None, bool]:
         """The scan's points within range, de-skewed into the lidar frame of ``stamp``
         (docs/mapping.md, De-skew) after the elevation correction, in the map frame; and their
         labels. One compiled pass (``kernels.prepare_points``); no de-skew without per-point
@@ -270,20 +333,21 @@ class StreamingMapBuilder:
                 sign = -1.0 if d.direction == "clockwise" else 1.0
                 azimuth = np.array([np.radians(d.reference_azimuth_deg), sign, d.period])
         if (times is not None or len(azimuth)) and twist is None:
-            twist = self._velocity(stamp, lidar, from_stream)
+            twist = self._velocity(stamp, lidar, from_stream, use_previous)
+        if times is None and not len(azimuth):
+            twist = None
         if twist is None:
             times, azimuth = None, _NONE
-        else:
-            self.deskewed += 1
         points = xyz if xyz.dtype in (np.float32, np.float64) else xyz.astype(np.float64)
         out, keep = kernels.prepare_points(
             np.ascontiguousarray(points), _NONE if times is None else times,
             _NONE if twist is None else np.asarray(twist, np.float64),
             np.ascontiguousarray(lidar, dtype=np.float64), float(p.d_min), float(p.d_max),
             azimuth)
-        return out, None if scan.label is None else scan.label[keep]
+        return out, None if scan.label is None else scan.label[keep], twist is not None
 
-    def _velocity(self, stamp: float, lidar: np.ndarray, from_stream: bool) -> np.ndarray | None:
+    def _velocity(self, stamp: float, lidar: np.ndarray, from_stream: bool,
+                  use_previous: bool = True) -> np.ndarray | None:
         """The lidar's body twist at ``stamp``: from the pose stream half a sweep either side,
         else from the previous scan's pose (within ``deskew.max_gap``)."""
         half = self.params.deskew.period / 2
@@ -294,11 +358,12 @@ class StreamingMapBuilder:
                 return body_twist(before, after, 2 * half)
             except ValueError:
                 pass
-        if self._priors and 0 < stamp - self._stamps[-1] <= self.params.deskew.max_gap:
+        if use_previous and self._priors and \
+                0 < stamp - self._stamps[-1] <= self.params.deskew.max_gap:
             return body_twist(self._priors[-1], lidar, stamp - self._stamps[-1])
         return None
 
-    def _filter_scan(self, xyz: np.ndarray, label: np.ndarray | None, lidar_pose: np.ndarray
+    def _filter_scan(self, xyz: np.ndarray, label: np.ndarray | None, path_xy: np.ndarray
                      ) -> LabelledCloud:
         """Voxel grid (majority label), dynamic classes, crop: the scan's share of the map."""
         p = self.params
@@ -306,8 +371,7 @@ class StreamingMapBuilder:
         if cloud.label is None:
             cloud = LabelledCloud(cloud.xyz, np.full(len(cloud), filters.UNLABELED, np.uint16))
         if p.remove_dynamic:
-            path = np.vstack([self.path_xy(), lidar_pose[None, :2, 3]])
-            cloud = self._remove_dynamic(cloud, path)
+            cloud = self._remove_dynamic(cloud, path_xy)
         if p.crop_radius > 0:
             cloud = filters.crop_radius(cloud, np.asarray(p.crop_center),
                                         p.crop_radius + p.crop_margin)
@@ -363,15 +427,17 @@ class StreamingMapBuilder:
                                      p.registration)
             merged = time.perf_counter() - tm
         t1 = time.perf_counter()
-        parts, updates = [], []
-        for node, c in zip(group, corrections):
-            moved = not np.allclose(c, np.eye(4), atol=1e-12)
-            parts.append(filters.transform(node.cloud, c) if moved else node.cloud)
-            if moved:
-                updates.append((node.scans, c))
-        cloud = filters.voxel_downsample(filters.concatenate(parts), p.voxel)
-        if p.remove_dynamic and p.corridor > 0:
-            cloud = self._remove_dynamic(cloud, self.path_xy())
+        updates = [(node.scans, c) for node, c in zip(group, corrections)
+                   if not np.allclose(c, np.eye(4), atol=1e-12)]
+        if p.remove_dynamic and p.corridor > 0:  # needs the path now: here
+            cloud = self._remove_dynamic(_merged_cloud(group, corrections, p.voxel),
+                                         self.path_xy())
+        else:  # the voxel grid of the merged cloud in the merge thread (compiled, GIL-free)
+            # while this one registers the next groups; FIFO: its inputs are done before it
+            if self._merger is None:
+                self._merger = ThreadPoolExecutor(max_workers=1, thread_name_prefix="merge")
+            cloud = self._merger.submit(_merged_cloud, list(group), corrections, p.voxel,
+                                        self._merge_seconds)
         self.timings["covariances"] += covariances
         self.timings["icp"] += t1 - t0 - covariances - merged
         self.timings["merge"] += time.perf_counter() - t1 + merged
@@ -426,7 +492,9 @@ class StreamingMapBuilder:
             map=self.current_map(), scan_ids=list(self._ids), stamps=np.array(self._stamps),
             prior_poses=np.array(self._priors).reshape(n, 4, 4),
             corrections=np.array(self._corrections).reshape(n, 4, 4),
-            skipped=list(self.skipped), timings=dict(self.timings), points_in=self.points_in,
+            skipped=list(self.skipped),
+            timings={**self.timings, "merge": self.timings["merge"] + sum(self._merge_seconds)},
+            points_in=self.points_in,
             points_kept=self.points_kept, pairs=list(self._pairs))
 
 
@@ -459,24 +527,41 @@ def build_map(scans: Iterable[ScanInput], params: MapBuildParams | None = None,
                 twists = twists_from_poses(lidar, stamps, p.deskew.max_gap)
         except ValueError:
             pass  # a bad pose is reported by add_scan
-    load = 0.0
-    bar = tqdm(items, desc="scans", unit="scan", disable=not progress, leave=False)
-    for i, item in enumerate(bar):
-        scan_id = item.scan_id or str(i)
+    path = np.zeros((len(items), 2))  # the vehicle path as given (dynamic removal corridor)
+    for i, item in enumerate(items):
+        try:
+            path[i] = (as_matrix(item.pose) @ builder.extrinsic)[:2, 3]
+        except ValueError:
+            path[i] = path[i - 1] if i else 0.0  # a bad pose is reported by prepare_scan
+    loads = [0.0] * len(items)
+
+    def prepare(i: int) -> PreparedScan:
+        """Scan i read and prepared (runs in the second thread)."""
+        item, scan_id = items[i], items[i].scan_id or str(i)
         tl = time.perf_counter()
         try:
             cloud = item.cloud() if callable(item.cloud) else item.cloud
         except (OSError, ValueError) as exc:
-            builder.skipped.append((scan_id, f"scan {scan_id}: {exc}"))
-            continue
+            raise ScanRejected(f"scan {scan_id}: {exc}", "load") from None
         finally:
-            load += time.perf_counter() - tl
-        try:
-            builder.add_scan(cloud, item.pose, item.stamp, scan_id, twists[i])
-        except ScanRejected:
-            pass  # recorded in builder.skipped
-        bar.set_postfix(kept=builder.points_kept, skipped=len(builder.skipped))
+            loads[i] = time.perf_counter() - tl
+        return builder.prepare_scan(cloud, item.pose, item.stamp, scan_id, twists[i],
+                                    path_xy=path[:i + 1], use_previous=False)
+
+    # the next scan is read and prepared while this one registers: two cores at work
+    bar = tqdm(total=len(items), desc="scans", unit="scan", disable=not progress, leave=False)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="prepare") as pool:
+        ahead = pool.submit(prepare, 0) if items else None
+        for i in range(len(items)):
+            current, ahead = ahead, pool.submit(prepare, i + 1) if i + 1 < len(items) else None
+            try:
+                builder.add_prepared(current.result())
+            except ScanRejected as exc:
+                builder.skipped.append((items[i].scan_id or str(i), str(exc)))
+            bar.update()
+            bar.set_postfix(kept=builder.points_kept, skipped=len(builder.skipped))
     bar.close()
+    load = sum(loads)
     tf = time.perf_counter()
     result = builder.finish()
     result.timings["load"] = load
