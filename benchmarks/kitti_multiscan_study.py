@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from semcal_ros.engine.cloud import LabelledCloud
+
 ROOT = Path(__file__).resolve().parents[1]
 KITTI = ROOT.parent / "shared" / "data" / "kitti_odometry_00"
 SCANS = list(range(6))

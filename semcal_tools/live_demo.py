@@ -151,8 +151,8 @@ def run_live(opts: DemoOptions) -> int:
         print(f"CPU time since the bag started: map_builder {cpu['map_builder']:.1f} s, "
               f"calibrator {cpu['calibrator']:.1f} s (wall time depends on what else runs)")
         print(f"overlay picture: {out / 'overlay.png'}")
-        print(f"also published: /calibration/transform (latched), /tf_static, "
-              f"/calibration/overlay")
+        print("also published: /calibration/transform (latched), /tf_static, "
+              "/calibration/overlay")
         return 0
     except (TimeoutError, RuntimeError) as exc:
         print(f"demo failed: {exc}")
@@ -236,9 +236,8 @@ def run_drift_demo(opts: DriftDemoOptions) -> int:
         common = {"map_file": str(scene / "map.ply"), "cameras": names}
         calibrator = graph.start_node("calibrator", params_file=config_file("calibrator.yaml"),
                                       params=common)
-        monitor = graph.start_node("calibration_monitor",
-                                   params_file=config_file("calibration_monitor.yaml"),
-                                   params={**common, "period": opts.period})
+        graph.start_node("calibration_monitor", params_file=config_file("calibration_monitor.yaml"),
+                         params={**common, "period": opts.period})
         ctx = graph.context()
         node = rclpy.create_node("semcal_drift_demo", context=ctx)
         executor = rclpy.executors.SingleThreadedExecutor(context=ctx)

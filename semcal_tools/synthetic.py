@@ -1,7 +1,8 @@
 """A labelled street sampled as points on surfaces: the engine's own test and benchmark world.
 
-It needs no ray casting, so it is built in a second and scales to any point count (benchmarks of
-100k-3M points). Surfaces are sampled on jittered grids (like a voxel-downsampled lidar map). The target image is
+It needs no ray casting, so it is built in a second and scales to any point count (benchmarks
+of 100k-3M points). Surfaces are sampled on jittered grids (like a voxel-downsampled lidar map).
+The target image is
 rendered from a second, denser sampling of the same surfaces at a known pose, so the map the
 calibrator sees and the target share no points: a calibration must return the pose up to what the
 sampling allows. A test of the engine, not of realism (semcal_tools.scenes ray-casts meshes for that).

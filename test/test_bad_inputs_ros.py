@@ -8,12 +8,11 @@ cases that stop a process at start run their processes side by side.
 
 from __future__ import annotations
 
-import re
 import struct
 import time
 from binascii import crc32
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -24,7 +23,6 @@ from geometry_msgs.msg import PoseStamped  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 
 from semcal_ros.engine.cloud import LabelledCloud  # noqa: E402
-from semcal_ros.engine.pose import Pose  # noqa: E402
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 

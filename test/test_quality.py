@@ -3,7 +3,6 @@ answer is known; and the network-like label noise the report and the loss are me
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

@@ -365,7 +365,8 @@ def test_goal_request_checks_inputs():
 
     cam = CameraModel(64, 48, np.array([[50.0, 0, 32], [0, 50, 24], [0, 0, 1]]), np.zeros(5),
                       frame_id="cam")
-    inputs = Inputs(HeldMap.from_cloud(_cloud(), LabelMapping(), "map", "test"), "map", np.zeros((40, 64), np.uint8), "cam", cam)
+    inputs = Inputs(HeldMap.from_cloud(_cloud(), LabelMapping(), "map", "test"), "map",
+                    np.zeros((40, 64), np.uint8), "cam", cam)
     initial = Pose.from_body_rpy_deg([0.0, 0.0, 5.0], [0.0, 10.0, 0.0])
     with pytest.raises(ValueError, match="label image is 64x40 but CameraInfo says 64x48"):
         goal_request(make_goal(initial), inputs, CalibrationParams(), 0)

@@ -114,7 +114,8 @@ def test_bag_replay_delivers_everything_with_timing_and_clock(graph, tmp_path, s
     spread = got_clouds[-1][0] - got_clouds[0][0]
     assert spread > 0.6, spread
     assert len(clock) >= 30 and np.all(np.diff(clock) >= 0)
-    assert 1700000000.0 <= clock[0] and clock[-1] <= 1700000000.0 + 29 / 20.0 + 1e-5  # last: odometry, 1 us later
+    # the last message is odometry, 1 us after the last scan
+    assert 1700000000.0 <= clock[0] and clock[-1] <= 1700000000.0 + 29 / 20.0 + 1e-5
 
 
 def test_bag_player_reports_a_missing_bag(graph, tmp_path):

@@ -1,8 +1,9 @@
 """The ``semcal`` command: one module per subcommand, discovered here.
 
 Each ``semcal_ros/cli/<name>.py`` (and each ``semcal_tools/cli/<name>.py``: the test and demo
-tooling's commands scene, bench, evaluate, demo) defines ``register(subparsers)`` that adds its parser and sets
-``func``; modules import their heavy dependencies inside ``run`` so ``semcal --help`` stays fast.
+tooling's commands scene, bench, evaluate, demo) defines ``register(subparsers)`` that adds its
+parser and sets ``func``; modules import their heavy dependencies inside ``run`` so
+``semcal --help`` stays fast.
 Errors the user can fix (bad files, bad values) are raised as ``ValueError``/``FileNotFoundError``
 and printed as one line with a non-zero exit code.
 """

@@ -20,7 +20,7 @@ from tqdm import tqdm
 
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io.files import (
-    pose_to_dict, write_camera_info, write_label_image, write_pose, write_rgb_image,
+    pose_to_dict, write_camera_info, write_label_image, write_rgb_image,
 )
 from semcal_ros.io.ply import write_ply
 from semcal_ros.mapping.filters import voxel_downsample
