@@ -84,9 +84,7 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
                              else np.zeros(0, np.uint16))
     if not np.issubdtype(xyz.dtype, np.floating):
         xyz = xyz.astype(np.float64)
-    span = [(float(xyz[:, k].max()) - float(xyz[:, k].min())) / voxel for k in range(3)]
-    if not max(span) < 2.0 ** 20:  # cells are packed 21 bits per axis (axis-0 reductions of
-        # an (N, 3) array are slow: column by column)
+    if not kernels.span(xyz) / voxel < 2.0 ** 20:  # cells are packed 21 bits per axis
         raise ValueError(f"voxel grid too large for {voxel} m cells; "
                          "points far apart or a tiny voxel size")
     if cloud.label is None:

@@ -90,6 +90,21 @@ def prepare_points(xyz: np.ndarray, times: np.ndarray, twist: np.ndarray, pose: 
 
 
 @nb.njit(cache=True, nogil=True)
+def span(xyz: np.ndarray) -> float:
+    """The largest extent of the points along x, y or z (one pass; NaN if any is NaN)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(xyz.shape[0]):
+        for k in range(3):
+            v = xyz[i, k]
+            if not v >= lo[k]:  # NaN propagates
+                lo[k] = v
+            if not v <= hi[k]:
+                hi[k] = v
+    return max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2])
+
+
+@nb.njit(cache=True, nogil=True)
 def _hash(key: np.int64, mask: np.int64) -> np.int64:
     h = np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)
     return np.int64(h >> np.uint64(20)) & mask

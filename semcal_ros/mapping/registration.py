@@ -36,15 +36,15 @@ _reg = o3d.pipelines.registration  # pose graph (legacy API)
 class RegistrationParams:
     """Parameters of the pairwise ICP (coarse-to-fine stages) and of the pose graph."""
 
-    target_voxel: float = 0.5  # m, grid of a cloud as an ICP target
+    target_voxel: float = 0.6  # m, grid of a cloud as an ICP target
     source_voxel: float = 0.6  # m, grid of a cloud as an ICP source (its points move)
     max_correspondence: tuple[float, ...] = (1.2, 0.45)  # partner search distance per stage
     max_iterations: int = 30  # per stage
     converged_deg: float = 0.005  # a stage stops when an iteration turns the cloud less than
     converged_m: float = 0.0002  # this and moves it less than this (small_gicp's defaults,
     # 0.1 deg / 1 mm, stop early by a few hundredths of a degree)
-    max_source_points: int = 5000  # ICP moves a random subset of the source grid (0: all)
-    max_target_points: int = 20000  # a merged cloud beyond this gets a coarser target grid,
+    max_source_points: int = 3000  # ICP moves a random subset of the source grid (0: all)
+    max_target_points: int = 15000  # a merged cloud beyond this gets a coarser target grid,
     # so the covariances of big merged clouds at high levels cost no more than a few scans'
     neighbours: int = 10  # points whose spread gives each point's covariance
     min_fitness: float = 0.2  # fraction of source points with a partner; less: edge dropped
