@@ -18,7 +18,6 @@ the answer; docs/engine.md has the measurements behind each choice.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -32,10 +31,7 @@ from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Problem
 from semcal_ros.engine.quality import assess
 from semcal_ros.engine.results import CalibrationResult, Progress, RunResult
-
-
-class Cancelled(Exception):
-    """Raised inside ``calibrate`` when ``should_stop()`` returned True."""
+from semcal_ros.errors import CalibrationFailed, Cancelled, InputError  # Cancelled: raised here
 
 
 class EvaluationCounter:
@@ -222,7 +218,7 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
     search = Search(problem, counter)
     if not params.search.yaw_search and \
             problem.evaluate(initial, 0).coverage < params.loss.min_coverage:
-        raise ValueError("no map point in view at the initial pose (check the initial pose, "
+        raise InputError("no map point in view at the initial pose (check the initial pose, "
                          "its frame and the map)")
     vp = params.verification
     starts = _yaw_candidates(search, initial) if params.search.yaw_search else [initial]
@@ -254,11 +250,11 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
         best_pose, best_loss = _without_label_outliers(problem, search, best_pose, best_loss, win)
     final = problem.evaluate(best_pose)
     if problem.degenerate(final):
-        raise ValueError(
-            f"calibration failed: at the best pose found the map covers "
+        raise CalibrationFailed(
+            f"at the best pose found the map covers "
             f"{final.coverage * 100:.1f} % of the labelled image (loss {final.loss:.4g}); "
             "the initial pose is probably far from the truth, or the map is not of this camera's "
-            "view")
+            "view", counter.evaluations, time.perf_counter() - t0)
     # renumber the basins so the result's is 0, the others in order of coarse loss
     order = {b: k for k, b in enumerate(
         [basin[win]] + [b for b in range(len(heads)) if b != basin[win]])}

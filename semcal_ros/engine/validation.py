@@ -29,13 +29,15 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from semcal_ros.engine.params import MAX_BOUND_DEG, MAX_BOUND_XYZ_M, CalibrationParams
+from semcal_ros.errors import InputError
 
 
 def check(problems: Iterable[str], prefix: str = "") -> None:
-    """ValueError listing every problem (one line), or nothing."""
+    """:class:`~semcal_ros.errors.InputError` (a ValueError) listing every problem (one line),
+    or nothing."""
     problems = list(problems)
     if problems:
-        raise ValueError(prefix + "; ".join(problems))
+        raise InputError(prefix + "; ".join(problems))
 
 
 def _finite(values: Any) -> bool:

@@ -8,7 +8,7 @@ is named in one message, because the caller only sees the action result's text.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -17,6 +17,7 @@ from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.config import apply_flat
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose
+from semcal_ros.errors import InputError
 from semcal_ros.ros.held_map import HeldMap
 
 ROLL_CHOICES = {0: None, 1: False, 2: True}  # ROLL_DEFAULT, ROLL_FIXED, ROLL_FREE
@@ -138,10 +139,10 @@ def goal_params(goal: Any, defaults: CalibrationParams) -> CalibrationParams:
 
 def goal_request(goal: Any, inputs: Inputs, defaults: CalibrationParams,
                  default_seed: int) -> Request:
-    """A runnable request, or ValueError listing every problem of the goal."""
+    """A runnable request, or :class:`InputError` listing every problem of the goal."""
     problems = goal_problems(goal, inputs)
     if problems:
-        raise ValueError("; ".join(problems))
+        raise InputError("; ".join(problems))
     p = goal.initial_pose.pose
     initial = Pose(np.array([p.position.x, p.position.y, p.position.z]),
                    np.array([p.orientation.x, p.orientation.y, p.orientation.z,
@@ -152,3 +153,26 @@ def goal_request(goal: Any, inputs: Inputs, defaults: CalibrationParams,
     camera_frame = goal.camera_frame_id or inputs.camera.frame_id or "camera_optical"
     seed = int(goal.seed) if goal.seed >= 0 else default_seed
     return Request(initial, params, seed if seed >= 0 else None, inputs.map_frame, camera_frame)
+
+
+def camera_for_goal(cameras: Mapping[str, Any], camera_frame_id: str) -> tuple[Any | None, str]:
+    """The camera (of ``cameras``: name -> CameraInputs) a goal's ``camera_frame_id`` means,
+    and the frame id to check its inputs against; or None and the reason. A name selects its
+    camera whatever its frame; the single unnamed camera takes any (its inputs' check then
+    names a wrong frame)."""
+    if len(cameras) == 1 and "" in cameras:
+        return cameras[""], camera_frame_id
+    served = ", ".join(f"'{c.name}'" + (f" ({c.snapshot().frame_id})"
+                                        if c.snapshot().frame_id else "")
+                       for c in cameras.values())
+    if not camera_frame_id:
+        if len(cameras) == 1:
+            return next(iter(cameras.values())), ""
+        return None, (f"camera_frame_id is empty but this calibrator serves cameras "
+                      f"{served}: name one")
+    if camera_frame_id in cameras:
+        return cameras[camera_frame_id], ""  # by name: any frame id of that camera
+    for camera in cameras.values():
+        if camera.answers_to(camera_frame_id):
+            return camera, camera_frame_id
+    return None, f"unknown camera '{camera_frame_id}': this calibrator serves {served}"

@@ -30,10 +30,11 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from semcal_ros.engine.pose import Pose
+from semcal_ros.errors import Cancelled
 from semcal_ros.ros.runtime import release_free_memory
 
 
-class JobCancelled(Exception):
+class JobCancelled(Cancelled):
     """A job stopped before it started (cancelled while queued, or the node is shutting down)."""
 
 
@@ -68,8 +69,9 @@ class EngineJob:
                 self.on_start()
             self.result = self.work(self)
         except Exception as exc:  # noqa: BLE001 - the caller reports it as the goal's result
-            if self._log_error is not None and not isinstance(exc, (ValueError, JobCancelled)) \
-                    and type(exc).__name__ != "Cancelled":
+            # expected endings (bad input, a failed or cancelled calibration) are answers; only
+            # the unexpected get a traceback in the log
+            if self._log_error is not None and not isinstance(exc, (ValueError, Cancelled)):
                 self._log_error(traceback.format_exc())
             self.error = exc
         finally:
