@@ -356,3 +356,67 @@ def test_real_scene_writes_probabilities_with_its_labels(deeplab, tmp_path, caps
     err = capsys.readouterr().err
     assert "--probabilities needs --model" in err and err.count("\n") == 1
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.ros
+@needs_deeplab
+def test_image_segmenter_node_publishes_probabilities_over_dds(deeplab, graph):
+    """Two node processes over DDS: with publish_probabilities the 8UC19 image arrives with the
+    labels' header and decodes to the labels; without it there is no such publisher."""
+    pytest.importorskip("rclpy")
+    import rclpy
+    from sensor_msgs.msg import Image
+
+    from ros_helpers import publish_until, spin_until
+    from semcal_ros.ros import conversions as conv
+    from semcal_ros.ros import qos
+    from semcal_ros.ros.nodes.image_segmenter import image_to_probabilities
+
+    model, config = deeplab
+    node = graph.start_node("image_segmenter",
+                            params={"model": str(model), "model_config": str(config),
+                                    "publish_probabilities": True, "runner.threads": 2},
+                            remap={"image": "/cam/image_raw", "labels": "/cam/labels",
+                                   "label_probabilities": "/cam/label_probabilities"})
+    plain = graph.start_node("image_segmenter", name="plain_segmenter",
+                             params={"model": str(model), "model_config": str(config),
+                                     "runner.threads": 1},
+                             remap={"image": "/cam2/image_raw", "labels": "/cam2/labels",
+                                    "__node": "plain_segmenter"})
+    ctx = graph.context()
+    listener = rclpy.create_node("probabilities_listener", context=ctx)
+    executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+    executor.add_node(listener)
+    try:
+        labels, probs = [], []
+        listener.create_subscription(Image, "/cam/labels", labels.append, qos.sensor(5))
+        listener.create_subscription(Image, "/cam/label_probabilities", probs.append,
+                                     qos.sensor(5))
+        pub = listener.create_publisher(Image, "/cam/image_raw", qos.reliable(2))
+        image, _ = read_colour_image(KITTI / "image_2" / "000000.png")  # bgr8
+        header = conv.make_header("cam2_optical", 77.25)
+        msg = conv.numpy_to_image(image, "bgr8", header)
+        publish_until(executor, pub, msg, lambda: labels and probs, 90,
+                      "labels and probabilities", period=2.0)
+        got_labels = conv.image_to_labels(labels[0])
+        spin_until(executor, lambda: any(p.header.stamp == labels[0].header.stamp
+                                         for p in probs), 30, "the labels' probabilities")
+        out = next(p for p in probs if p.header.stamp == labels[0].header.stamp)
+        assert (out.encoding, out.header.frame_id) == ("8UC19", "cam2_optical")
+        assert conv.stamp_to_seconds(out.header.stamp) == 77.25
+        assert (out.height, out.width, out.step) == (376, 1241, 19 * 1241)
+        decoded = image_to_probabilities(out)
+        assert np.abs(decoded.sum(axis=2) - 1).max() < 19 * 0.5 / 255 + 1e-6
+        unique = (decoded == decoded.max(axis=2, keepdims=True)).sum(axis=2) == 1
+        np.testing.assert_array_equal(decoded.argmax(axis=2)[unique], got_labels[unique])
+        assert unique.mean() > 0.99  # measured 99.95 %: ties of x 255 rounding
+        # the node without the parameter: its labels publisher is seen, no probabilities one
+        spin_until(executor, lambda: listener.count_publishers("/cam2/labels") == 1, 60,
+                   "the plain segmenter's labels publisher")
+        assert listener.count_publishers("/cam2/label_probabilities") == 0
+        assert listener.count_publishers("/cam/label_probabilities") == 1
+    finally:
+        executor.shutdown()
+        listener.destroy_node()
+    assert node.running() and plain.running()
+    assert "Traceback" not in node.log()

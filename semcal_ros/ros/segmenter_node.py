@@ -51,6 +51,7 @@ class SegmenterNode(Node):
         depth = max(self.opts.queue_size, 2)
         self.publisher = self.create_publisher(self.msg_type, self.out_topic, qos.sensor(depth),
                                                qos_overriding_options=overrides)
+        self.create_outputs(depth, overrides)
         self._last_failure = ""
         self.worker = LatestWorker(self._process, self._failed, self.opts.queue_size)
         in_type, self.in_resolved = self.input()
@@ -66,6 +67,10 @@ class SegmenterNode(Node):
         """(message type, topic) of the input; the image segmenter's depends on its
         ``image_transport``."""
         return self.msg_type, self.in_topic
+
+    def create_outputs(self, depth: int, overrides: Any) -> None:
+        """More publishers beside ``out_topic`` (made before the subscription, so the first
+        message finds them); default none."""
 
     def require(self, opts: Any) -> None:
         """Refuse to start without what :meth:`load` needs (default: the model files)."""
