@@ -61,7 +61,7 @@ def run_scene(folder: Path, settings: list[str], start_protocols: list[tuple[flo
     from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.engine.problem import Problem
     from semcal_ros.engine.search import solve
-    from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
+    from semcal_ros.io.files import pose_to_dict, read_camera_info, read_label_image, read_pose
     from semcal_ros.io.ply import read_ply
     from semcal_tools.evaluation import ProtocolParams, initial_guesses
 
@@ -106,7 +106,8 @@ def run_scene(folder: Path, settings: list[str], start_protocols: list[tuple[flo
                     rec.update(t_cm=translation_error(res.pose, truth) * 100,
                                r_deg=rotation_error_deg(res.pose, truth), loss=float(res.loss),
                                verdict=q.verdict if q else "", reason=q.reason if q else "",
-                               agreement=q.agreement if q else None)
+                               agreement=q.agreement if q else None,
+                               pose=pose_to_dict(res.pose))
                 except ValueError as exc:
                     rec.update(t_cm=translation_error(start, truth) * 100,
                                r_deg=rotation_error_deg(start, truth), loss=None,
@@ -143,6 +144,72 @@ def table(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
+#: scene-name prefixes of the issue's target groups (real frames) and the synthetic layouts
+GROUPS = {"KITTI 00 f0 6 scans": ("kitti00_f0_6scans",), "KITTI 00 f0 1 scan": ("kitti00_f0_1scan",),
+          "8 single KITTI frames": ("kitti00_0",), "KITTI object": ("object_",),
+          "PJLab": ("pjlab_",), "synthetic, network-like noise": ("+network",),
+          "synthetic, ideal": ("junction", "arterial", "roundabout", "highway")}
+
+
+#: scene-folder suffixes of `/work/realscenes` (README.txt there): the label image's source
+SOURCES = {"_v2": "ESPNetv2", "_tpu": "EdgeTPU DeepLab", "_ideal": "ideal labels"}
+
+
+def group_of(scene: str) -> str:
+    if scene.endswith("+network"):
+        return "synthetic, network-like noise"
+    source = next((f", {v}" for k, v in SOURCES.items() if scene.endswith(k)), "")
+    for name, prefixes in GROUPS.items():
+        if scene.startswith(prefixes):
+            return name + source
+    return "other"
+
+
+def compare(records: list[dict]) -> str:
+    """One table for all settings: per group of scenes (and start protocol) the median error
+    over every run, the worst, and the verdicts (good / runs; good ones worse than 30 cm /
+    0.5 deg in brackets)."""
+    settings = list(dict.fromkeys(r["setting"] for r in records))
+    keys = sorted({(group_of(r["scene"]), r["starts"]) for r in records})
+    head = ["group", "starts"] + settings
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for group, starts in keys:
+        cells = [group, starts]
+        for s in settings:
+            g = [r for r in records if r["setting"] == s and group_of(r["scene"]) == group
+                 and r["starts"] == starts]
+            if not g:
+                cells.append("")
+                continue
+            t = np.array([r["t_cm"] for r in g])
+            a = np.array([r["r_deg"] for r in g])
+            good = [r["verdict"] == "good" for r in g]
+            bad_good = sum(gd and (r["t_cm"] > 30 or r["r_deg"] > 0.5) for gd, r in zip(good, g))
+            cells.append(f"{np.median(t):.1f} cm / {np.median(a):.2f} deg (worst {t.max():.0f} cm;"
+                         f" good {sum(good)}/{len(g)}" + (f", {bad_good} bad" if bad_good else "")
+                         + ")")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def frames(records: list[dict]) -> str:
+    """A row per scene, a column per setting: every run's error and verdict (g good,
+    i inconclusive, f failed, e refused), runs in start-protocol order."""
+    settings = list(dict.fromkeys(r["setting"] for r in records))
+    scenes = sorted({r["scene"] for r in records})
+    head = ["scene"] + settings
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for scene in scenes:
+        cells = [scene]
+        for s in settings:
+            g = sorted((r for r in records if r["scene"] == scene and r["setting"] == s),
+                       key=lambda r: (r["starts"], r["run"]))
+            cells.append("; ".join(f"{r['t_cm']:.0f} cm / {r['r_deg']:.2f} ({r['verdict'][:1]})"
+                                   for r in g))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def summary_line(rs: list[dict]) -> str:
     t = np.array([r["t_cm"] for r in rs])
     a = np.array([r["r_deg"] for r in rs])
@@ -166,10 +233,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", help="parameter file instead of each scene's calibrator.yaml")
     ap.add_argument("--json", type=Path, help="append the records to this JSON file")
     ap.add_argument("--table", nargs="+", type=Path, help="print the tables of JSON files")
+    ap.add_argument("--compare", action="store_true",
+                    help="with --table: one table, a column per setting, a row per scene group")
+    ap.add_argument("--frames", action="store_true",
+                    help="with --table: a row per scene, a column per setting, every run")
     args = ap.parse_args(argv)
     if args.table:
         recs = [r for p in args.table for r in json.loads(p.read_text())]
-        print(table(recs))
+        print(compare(recs) if args.compare else frames(recs) if args.frames else table(recs))
         return 0
     protocols = [tuple(float(v) for v in s.split(":")) for s in args.starts.split(",")]
     settings = args.settings.split(",")
