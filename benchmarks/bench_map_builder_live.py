@@ -66,7 +66,6 @@ def main() -> int:
     print(f"bag {scene / 'bag'}: {scans} scans at 10 Hz; {os.cpu_count()} cores, load {load}")
     with NodeGraph(args.out / "logs") as graph:
         builder = graph.start_node("map_builder", params_file=config_file("map_builder.yaml"),
-                                   params={"publish_period": 2.0},
                                    remap={"scan": SCAN_TOPIC, "odom": ODOM_TOPIC})
         builder.wait_for_log("ready", 60)
         ctx = graph.context()

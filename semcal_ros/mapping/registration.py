@@ -43,7 +43,7 @@ class RegistrationParams:
     converged_deg: float = 0.005  # a stage stops when an iteration turns the cloud less than
     converged_m: float = 0.0002  # this and moves it less than this (small_gicp's defaults,
     # 0.1 deg / 1 mm, stop early by a few hundredths of a degree)
-    max_source_points: int = 3000  # ICP moves a random subset of the source grid (0: all)
+    max_source_points: int = 6000  # ICP moves a random subset of the source grid (0: all)
     max_target_points: int = 15000  # a merged cloud beyond this gets a coarser target grid,
     # so the covariances of big merged clouds at high levels cost no more than a few scans'
     neighbours: int = 10  # points whose spread gives each point's covariance
