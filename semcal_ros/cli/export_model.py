@@ -40,8 +40,9 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     result = export_model(args.arch, args.weights, args.out, args.width, args.height,
                           args.graph)
-    print(f"{args.arch}: {result.parameters:,} parameters, {result.nodes} nodes, "
-          f"{result.folded_batchnorms} BatchNorms folded into convolutions, "
+    folded = (f"{result.folded_batchnorms} BatchNorms folded into convolutions, "
+              if result.folded_batchnorms else "")
+    print(f"{args.arch}: {result.parameters:,} parameters, {result.nodes} nodes, {folded}"
           f"{result.width}x{result.height} input, built in {time.perf_counter() - start:.1f} s\n"
           f"  model:  {result.model_path}\n  config: {result.config_path}")
     return 0

@@ -423,7 +423,7 @@ class PointAgreement:
     per_class: dict  # name -> (precision, recall, reference points, predicted points)
 
     def table(self) -> str:
-        lines = [f"| class | reference points | precision | recall |", "|---|---|---|---|"]
+        lines = ["| class | reference points | precision | recall |", "|---|---|---|---|"]
         for name, (prec, rec, n_ref, _) in self.per_class.items():
             lines.append(f"| {name} | {n_ref} | {100 * prec:.1f} % | {100 * rec:.1f} % |")
         lines.append(f"| **overall** | {self.points} | | **{100 * self.overall:.1f} %** |")

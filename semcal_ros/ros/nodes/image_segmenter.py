@@ -3,12 +3,12 @@
 Subscribes ``image`` (rgb8/bgr8, sensor-data QoS; with ``image_transport: compressed`` the
 CompressedImage stream ``<resolved image topic>/compressed``, JPEG or PNG), runs the user's ONNX
 model (:class:`~semcal_ros.segmentation.image.ImageSegmenter`, parameters ``model`` and
-``model_config``) and publishes ``labels`` (mono8 trainIds, 255 = ignored) with the input's header, so the label
-image keeps the camera's stamp and frame. With ``publish_probabilities: true`` it also publishes
-``label_probabilities``: the class probabilities (trainIds 0-18, pixel-aligned with the labels)
-as an ``8UC19`` Image (probability x 255, rounded) with the same header, just before the labels
-(docs/CONTRACTS.md). Only the newest image is kept while the model runs:
-a slow model drops frames rather than falling behind. Compressed data that does not decode is
+``model_config``) and publishes ``labels`` (mono8 trainIds, 255 = ignored) with the input's
+header, so the label image keeps the camera's stamp and frame. With ``publish_probabilities:
+true`` it also publishes ``label_probabilities``: the class probabilities (trainIds 0-18,
+pixel-aligned with the labels) as an ``8UC19`` Image (probability x 255, rounded) with the same
+header, just before the labels (docs/CONTRACTS.md). Only the newest image is kept while the model
+runs: a slow model drops frames rather than falling behind. Compressed data that does not decode is
 dropped with one WARN naming the topic; the next good message is segmented.
 """
 

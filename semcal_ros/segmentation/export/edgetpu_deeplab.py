@@ -27,7 +27,6 @@ another architecture fails clearly instead of building a wrong network.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -56,8 +55,9 @@ def read_graph(path: str | Path) -> dict[str, Any]:
                                 "needs the .graph.json published beside the .npz)")
     try:
         graph = json.loads(path.read_text())
-        ops, tensors = graph["ops"], graph["tensors"]
         inputs, outputs = graph["inputs"], graph["outputs"]
+        if not isinstance(graph["ops"], list) or not isinstance(graph["tensors"], list):
+            raise TypeError("'ops' and 'tensors' must be lists")
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{path}: not an operator list (.graph.json with inputs, outputs, ops, "
                          f"tensors): {exc}") from None
