@@ -294,6 +294,8 @@ class MapBuilderNode(Node):
                 now = time.perf_counter()
                 self.clock.scan(now - mark)
                 mark = now
+            if ahead is None:  # one may have become ready meanwhile
+                ahead = self._take_next()
 
     def _take_next(self) -> tuple[float, Future] | None:
         """The next ready scan, its preparation started; scans that cannot join are counted."""
