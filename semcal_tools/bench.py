@@ -4,6 +4,10 @@ Renders go through :func:`semcal_ros.engine.render.view_for` with the engine's r
 the figures are those of a real calibration's full-resolution evaluation (level of detail on) and,
 for comparison, the same view with every point drawn. Calibrations start from the paper's
 +-2.5 m / +-5 deg and count the whole call (the map is prepared inside it).
+
+:func:`run_compare` times the default procedure against a plain run of the paper on the same map,
+start by start and alternating, so a change to the engine shows its cost against the method
+itself (a ratio within one run holds on a loaded machine; the absolute seconds do not).
 """
 
 from __future__ import annotations
@@ -16,8 +20,9 @@ from typing import Callable
 import numpy as np
 
 from semcal_ros.engine.loss import LabelLoss, LossParams, loss_reference
-from semcal_ros.engine.search import calibrate
-from semcal_ros.engine.params import CalibrationParams, VerificationParams
+from semcal_ros.engine.problem import Problem
+from semcal_ros.engine.search import EvaluationCounter, Search, calibrate
+from semcal_ros.engine.params import CalibrationParams, ScheduleParams, VerificationParams
 from semcal_ros.engine.render.view import RenderParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.render import fast, prepare_map, reference, view_for
@@ -108,3 +113,74 @@ def run_benchmarks(sizes: tuple[int, ...] = (100_000, 1_000_000, 3_000_000), rep
                 f"{r['translation_error_cm_median']:.1f} cm / {r['rotation_error_deg_median']:.3f} deg")
     results["load_average_end"] = os.getloadavg()[0]
     return results
+
+
+#: The authors' disc size: 0.195 (NDC) x 300 px / 2 at their 480x300 = 58.5 px x m at 960x600.
+PAPER_LAMBDA = 0.195 * 600 / 2.0
+
+
+def paper_params() -> CalibrationParams:
+    """The paper's registration with this engine's parts: discs of radius lambda / d with the
+    authors' lambda, plain nearest-wins z-buffer (no depth falloff), every point drawn (no level of
+    detail), the masked L2 (no boundary band), one quarter-resolution stage then full resolution
+    with its two restarts (tolerances 1e-4, 1e-6), one start."""
+    d = CalibrationParams()
+    return CalibrationParams(
+        render=replace(d.render, splat_lambda=PAPER_LAMBDA, depth_falloff=0.0,
+                       depth_falloff_coarse=0.0, lod_radius=0.0),
+        loss=replace(d.loss, boundary_band_px=0.0),
+        schedule=ScheduleParams(scales=(4, 1), simplex=(1.0, 0.1), fatol=(1e-4, 1e-6),
+                                max_evaluations=(300, 150), restarts=(0, 2)),
+        verification=replace(d.verification, starts=0))
+
+
+def paper_run(world, target: np.ndarray, cam, start: Pose) -> tuple[Pose, int, float]:
+    """One plain paper run (no verification starts, no quality report): pose, evaluations and
+    seconds, the map prepared inside as :func:`calibrate` does."""
+    t0 = time.perf_counter()
+    problem = Problem(world, target, cam, start.translation, paper_params())
+    counter = EvaluationCounter(None, None)
+    search = Search(problem, counter)
+    center, loss = search.coarse(start, 0, "paper")
+    center, _ = search.refine(center, loss, 0, "paper", restart_first=False)
+    return Pose.from_vector(center), counter.evaluations, time.perf_counter() - t0
+
+
+def run_compare(sizes: tuple[int, ...] = (1_000_000,), runs: int = 3,
+                log: Callable[[str], None] = print) -> dict:
+    """The default procedure (verification starts and quality report included) against one plain
+    paper run (:func:`paper_run`), from the same starts on the same map, alternating."""
+    cam = camera()
+    target = target_image(cam)
+    calibrate(street_world_of_size(100_000), target, cam, _starts(1)[0], seed=0)  # compile
+    out: dict = {"load_average_start": os.getloadavg()[0]}
+    for n in sizes:
+        world = street_world_of_size(n)
+        rows = []
+        for i, start in enumerate(_starts(runs)):
+            res = calibrate(world, target, cam, start, seed=i)
+            pose, evals, seconds = paper_run(world, target, cam, start)
+            rows.append((res.seconds, seconds, res.seconds / seconds,
+                         translation_error(res.pose, GROUND_TRUTH) * 100,
+                         translation_error(pose, GROUND_TRUTH) * 100, res.evaluations, evals))
+            log(f"compare {len(world):,d} points, start {i + 1}/{runs}: default {res.seconds:.2f} s "
+                f"({res.evaluations} evaluations, {rows[-1][3]:.1f} cm), paper run {seconds:.2f} s "
+                f"({evals} evaluations, {rows[-1][4]:.1f} cm), ratio {rows[-1][2]:.2f}, "
+                f"load {os.getloadavg()[0]:.1f}")
+        arr = np.array(rows)
+        key = f"compare_{n // 100_000 / 10:g}M"
+        out[key] = {
+            "points": len(world), "runs": runs,
+            "default_seconds_median": float(np.median(arr[:, 0])),
+            "paper_seconds_median": float(np.median(arr[:, 1])),
+            "ratio_median": float(np.median(arr[:, 2])),
+            "default_error_cm_median": float(np.median(arr[:, 3])),
+            "paper_error_cm_median": float(np.median(arr[:, 4])),
+        }
+        r = out[key]
+        log(f"compare on {len(world):,d} points, {runs} starts: default {r['default_seconds_median']:.2f} s "
+            f"({r['default_error_cm_median']:.1f} cm), plain paper run {r['paper_seconds_median']:.2f} s "
+            f"({r['paper_error_cm_median']:.1f} cm), default / paper {r['ratio_median']:.2f} "
+            "(median of the per-start ratios)")
+    out["load_average_end"] = os.getloadavg()[0]
+    return out

@@ -18,7 +18,7 @@ import numpy as np
 
 from semcal_ros.engine.camera import MODEL_ID, distort, distort_rational, project_equidistant
 from semcal_ros.engine.labels import INVALID
-from semcal_ros.engine.render.lod import chunk_stride
+from semcal_ros.engine.render.lod import chunk_stride, drawn_count
 from semcal_ros.engine.render.prepare import CHUNK, PreparedMap
 from semcal_ros.engine.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, View
 
@@ -74,10 +74,42 @@ def _chunk_visible_fisheye(c, rad, r, t, near, far, limit):
     return angle - math.asin(rad / cdist) <= limit
 
 
+@numba.njit(cache=True, inline="always")
+def _splat(zb, u, v, dist, lab, s0, s1, span, offsets, falloff, core, width, height):
+    """One point's disc into the z-buffer: offsets ``s0:s1`` of the disc table around (u, v)."""
+    if s1 - s0 == 1:  # a one-pixel disc (offset 0, falloff 1, core): most far points
+        if u >= 0 and u < width and v >= 0 and v < height:
+            idx = v * width + u
+            key = np.uint32((min(int(dist * falloff[s0] * 1000.0), MAX_DEPTH_MM) << 8) |
+                            (lab if core[s0] else INVALID))
+            if key < zb[idx]:
+                zb[idx] = key
+        return
+    if u >= span and u < width - span and v >= span and v < height - span:
+        base = v * width + u  # the whole disc is inside: no test per pixel
+        for o in range(s0, s1):
+            idx = base + offsets[o, 1] * width + offsets[o, 0]
+            key = np.uint32((min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) |
+                            (lab if core[o] else INVALID))
+            if key < zb[idx]:
+                zb[idx] = key
+        return
+    for o in range(s0, s1):
+        uu = u + offsets[o, 0]
+        vv = v + offsets[o, 1]
+        if uu >= 0 and uu < width and vv >= 0 and vv < height:
+            idx = vv * width + uu
+            key = np.uint32((min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) |
+                            (lab if core[o] else INVALID))
+            if key < zb[idx]:
+                zb[idx] = key
+
+
 @numba.njit(cache=True, parallel=True, nogil=True)
-def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted, bounds,
-                 splat_lambda, lod_radius, radius_max, near, far, offsets, start, falloff, core,
-                 width, height, n_threads, model, limit):
+def _render_zbufs(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted, bounds,
+                  splat_lambda, lod_radius, radius_max, near, far, offsets, start, falloff, core,
+                  width, height, n_threads, model, limit):
+    """One z-buffer per thread (chunks dealt round-robin), not yet merged."""
     n = xyz.shape[0]
     n_chunks = chunk_center.shape[0]
     zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
@@ -85,7 +117,7 @@ def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, dis
     k1, k2, p1, p2, k3 = dist_c[0], dist_c[1], dist_c[2], dist_c[3], dist_c[4]
     k4, k5, k6 = dist_c[5], dist_c[6], dist_c[7]
     fisheye = model == EQUIDISTANT
-    span = int(math.floor(radius_max))
+    span_max = int(math.floor(radius_max))
     xmin, xmax, ymin, ymax = bounds[0], bounds[1], bounds[2], bounds[3]
     steps_max = int(math.floor(radius_max * RADIUS_STEPS))
     for th in numba.prange(n_threads):
@@ -101,8 +133,8 @@ def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, dis
             stride = chunk_stride(chunk_center[ci], chunk_radius[ci], r, t, near, splat_lambda,
                                   lod_radius)
             lam = splat_lambda * math.sqrt(np.float64(stride))
-            end = min(n, (ci + 1) * CHUNK)
-            for i in range(ci * CHUNK, end, stride):
+            first = ci * CHUNK
+            for i in range(first, first + drawn_count(stride, min(n - first, CHUNK))):
                 x = np.float64(xyz[i, 0])
                 y = np.float64(xyz[i, 1])
                 z = np.float64(xyz[i, 2])
@@ -134,52 +166,58 @@ def _render_keys(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, dis
                         xd, yd = xn, yn
                 u = int(math.floor(fx * xd + cx + 0.5))
                 v = int(math.floor(fy * yd + cy + 0.5))
-                if fisheye and not (-span <= u < width + span and -span <= v < height + span):
+                if fisheye and not (-span_max <= u < width + span_max and
+                                    -span_max <= v < height + span_max):
                     continue
                 step = min(int(math.floor(lam / dist * RADIUS_STEPS)), steps_max)
-                lab = label[i]
-                for o in range(start[step], start[step + 1]):
-                    uu = u + offsets[o, 0]
-                    vv = v + offsets[o, 1]
-                    if uu >= 0 and uu < width and vv >= 0 and vv < height:
-                        idx = vv * width + uu
-                        depth_mm = min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM)
-                        key = np.uint32((depth_mm << 8) | (lab if core[o] else INVALID))
-                        if key < zb[idx]:
-                            zb[idx] = key
-    # merge the per-thread z-buffers serially: a second parallel region costs more than it saves
-    out = zbufs[0]
-    for th in range(1, n_threads):
+                _splat(zb, u, v, dist, label[i], start[step], start[step + 1],
+                       step // RADIUS_STEPS, offsets, falloff, core, width, height)
+    return zbufs
+
+
+@numba.njit(cache=True, nogil=True)
+def _merged_keys(zbufs):
+    """The per-thread z-buffers' minimum, serially: a second parallel region costs more than it
+    saves."""
+    out = zbufs[0].copy()
+    for th in range(1, zbufs.shape[0]):
         other = zbufs[th]
-        for p in range(height * width):
+        for p in range(out.shape[0]):
             if other[p] < out[p]:
                 out[p] = other[p]
     return out
 
 
-def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
-    threads = n_threads or numba.get_num_threads()
-    zbuf = _render_keys(
-        pmap.xyz, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
-        view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
-        view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far, view.disc_offsets, view.disc_start,
-        view.disc_falloff, view.disc_core, view.width,
-        view.height, threads, view.model, view.limit)
-    return zbuf.reshape(view.height, view.width)
-
-
 @numba.njit(cache=True, nogil=True)
-def _keys_to_labels(zbuf):
-    """Serial on purpose: waking the thread pool costs more than this loop."""
-    out = np.empty(zbuf.shape, dtype=np.uint8)
-    flat_in = zbuf.ravel()
-    flat_out = out.ravel()
-    for p in range(flat_in.shape[0]):
-        k = flat_in[p]
-        flat_out[p] = INVALID if k == EMPTY_KEY else np.uint8(k & 0xFF)
+def _merged_labels(zbufs):
+    """Merge and label extraction in one pass over the image (serial on purpose: waking the
+    thread pool costs more than this loop)."""
+    n_threads, size = zbufs.shape
+    out = np.empty(size, dtype=np.uint8)
+    for p in range(size):
+        k = zbufs[0, p]
+        for th in range(1, n_threads):
+            if zbufs[th, p] < k:
+                k = zbufs[th, p]
+        out[p] = INVALID if k == EMPTY_KEY else np.uint8(k & 0xFF)
     return out
 
 
-def render(pmap: PreparedMap, view: View) -> np.ndarray:
+def _zbufs(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
+    threads = n_threads or numba.get_num_threads()
+    return _render_zbufs(
+        pmap.xyz, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
+        view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
+        view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far,
+        view.disc_offsets, view.disc_start, view.disc_falloff, view.disc_core, view.width,
+        view.height, threads, view.model, view.limit)
+
+
+def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
+    """The z-buffer (H, W) uint32, as reference.render_keys; EMPTY_KEY where nothing landed."""
+    return _merged_keys(_zbufs(pmap, view, n_threads)).reshape(view.height, view.width)
+
+
+def render(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
     """Aligned label image (H, W) uint8, INVALID where no point landed."""
-    return _keys_to_labels(render_keys(pmap, view))
+    return _merged_labels(_zbufs(pmap, view, n_threads)).reshape(view.height, view.width)

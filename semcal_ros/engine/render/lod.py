@@ -3,10 +3,14 @@
 A lidar map is densest far from where its discs are large: beyond a few tens of metres a point's
 disc shrinks below a pixel and many points land on each pixel, so most of a render's work is
 redundant. For each chunk (1024 Morton-sorted points, spatially compact) the disc radius of its
-nearest possible point decides a stride ``k``: only every k-th point is drawn, with its disc
-widened by sqrt(k) so the thinned surface still closes (k times fewer points spread over the same
-area are sqrt(k) times farther apart). Chunks whose discs are at least ``lod_radius`` pixels keep
-every point. Both renderers call the same compiled function, so their images stay identical.
+nearest possible point decides a stride ``k``: only ceil(n / k) of its n points are drawn, with
+their discs widened by sqrt(k) so the thinned surface still closes (k times fewer points spread
+over the same area are sqrt(k) times farther apart). The drawn points are the first ceil(n / k) in
+the chunk's stored, bit-reversed Morton order (render/prepare.py): every k-th point along the curve
+when k is a power of two, an equally spread subset otherwise, read as one contiguous run (a strided
+gather cost a cache miss per point: 1/4-resolution renders were memory-latency bound). Chunks whose
+discs are at least ``lod_radius`` pixels keep every point. Both renderers call the same compiled
+functions, so their images stay identical.
 """
 
 from __future__ import annotations
@@ -44,3 +48,9 @@ def chunk_strides(chunk_center, chunk_radius, r, t, near, splat_lambda, lod_radi
         out[ci] = chunk_stride(chunk_center[ci], chunk_radius[ci], r, t, near, splat_lambda,
                                lod_radius)
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def drawn_count(stride, length):
+    """How many of a chunk's ``length`` stored points a stride draws: the first ceil(length / k)."""
+    return (length + stride - 1) // stride

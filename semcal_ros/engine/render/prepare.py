@@ -3,7 +3,9 @@
 Coordinates move to a local origin before the float32 cast (georeferenced coordinates in float32
 lose centimetres). Points are sorted along a Morton curve and cut into fixed-size chunks with
 bounding boxes, so the fast renderer can skip whole chunks outside the view and touches the z-buffer
-with good locality.
+with good locality. Inside a chunk the points are stored in bit-reversed Morton order: the first
+n / k of them are every k-th point along the curve (exactly so for k a power of two), so the level
+of detail reads a thinned chunk as one contiguous run instead of a strided gather (render/lod.py).
 """
 
 from __future__ import annotations
@@ -17,6 +19,20 @@ from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import INVALID, LabelMapping
 
 CHUNK = 1024
+CHUNK_BITS = 10  # CHUNK = 2 ** CHUNK_BITS
+
+
+def _bit_reversed(bits: int) -> np.ndarray:
+    """j -> j with its ``bits`` lowest bits in reverse order (an involution)."""
+    j = np.arange(1 << bits)
+    out = np.zeros_like(j)
+    for b in range(bits):
+        out |= ((j >> b) & 1) << (bits - 1 - b)
+    return out
+
+
+#: Stored position j of a chunk holds the point at Morton position BIT_REVERSED[j].
+BIT_REVERSED = _bit_reversed(CHUNK_BITS)
 
 
 @dataclass(frozen=True)
@@ -42,8 +58,11 @@ class PreparedMap:
         n = len(self)
         if n < 2:
             return 0.0
-        block = min(2048, n)
+        block = min(2 * CHUNK, n)
+        # whole chunks only: inside a chunk the order is bit-reversed, so a block cut mid-chunk
+        # would hold a thinned, sparser part of it
         starts = np.unique(np.linspace(0, n - block, min(32, max(1, n // block))).astype(int))
+        starts = np.unique(np.minimum(starts // CHUNK * CHUNK, n - block))
         gaps = []
         for s in starts:
             pts = self.xyz[s:s + block]
@@ -81,9 +100,20 @@ def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
     return _with_chunks(origin, local[order], aligned[order])
 
 
+def chunk_order(n: int) -> np.ndarray:
+    """Stored order of ``n`` Morton-sorted points: chunk by chunk, each chunk's positions in
+    bit-reversed order (a last, partial chunk keeps the same order among its positions)."""
+    n_chunks = (n + CHUNK - 1) // CHUNK
+    order = (np.arange(n_chunks)[:, None] * CHUNK + BIT_REVERSED[None, :]).ravel()
+    return order[order < n]
+
+
 def _with_chunks(origin: np.ndarray, xyz: np.ndarray, label: np.ndarray) -> PreparedMap:
-    xyz = np.ascontiguousarray(xyz, dtype=np.float32)
+    """Chunks of CHUNK points with bounding spheres, each chunk stored in bit-reversed order."""
     n = len(xyz)
+    order = chunk_order(n)
+    xyz = np.ascontiguousarray(np.asarray(xyz, dtype=np.float32)[order])
+    label = np.asarray(label)[order]
     n_chunks = (n + CHUNK - 1) // CHUNK
     pad = n_chunks * CHUNK - n
     padded = np.concatenate([xyz, np.repeat(xyz[-1:], pad, axis=0)]) if pad else xyz

@@ -28,12 +28,15 @@ EQUIDISTANT = MODEL_ID["equidistant"]
 def project_points(pmap: PreparedMap, view: View) -> tuple[np.ndarray, ...]:
     """Pixel column, row, radius step, distance and label of every drawn point in view."""
     r, t = view.rotation, view.translation
-    # level of detail: every k-th point of a chunk, its disc widened by sqrt(k) (see render/lod.py)
+    # level of detail: the first ceil(n/k) stored points of a chunk, discs widened by sqrt(k)
+    # (render/lod.py)
     stride = chunk_strides(pmap.chunk_center, pmap.chunk_radius, r, t, view.near,
                            view.splat_lambda, view.lod_radius)
     index = np.arange(len(pmap))
-    point_stride = stride[index // CHUNK]
-    drawn = (index % CHUNK) % point_stride == 0
+    chunk = index // CHUNK
+    point_stride = stride[chunk]
+    length = np.minimum(CHUNK, len(pmap) - chunk * CHUNK)
+    drawn = (index % CHUNK) < (length + point_stride - 1) // point_stride  # lod.drawn_count
     lam = view.splat_lambda * np.sqrt(point_stride[drawn].astype(np.float64))
     x = pmap.xyz[drawn, 0].astype(np.float64)
     y = pmap.xyz[drawn, 1].astype(np.float64)
