@@ -204,3 +204,31 @@ def test_the_label_error_refinement_keeps_an_exact_solution(world, target):
     res = solve(p, near, seed=0)
     assert translation_error(res.pose, GROUND_TRUTH) < 0.03
     assert res.loss == pytest.approx(p.loss(res.pose))
+
+
+def test_a_stage_ends_when_its_loss_stops_improving(problem):
+    """schedule.stall_evaluations (issue 19): a Nelder-Mead stage whose best loss has not dropped
+    by more than the stage's fatol for that many evaluations ends there. The search is
+    deterministic, so the stopped stage is the unstopped one cut short: same evaluations, in the
+    same order, up to the stop."""
+    import copy
+    from dataclasses import replace
+
+    from semcal_ros.engine.search import EvaluationCounter, Search
+
+    histories = {}
+    for stall in (0, 12):
+        p = copy.copy(problem)
+        p.params = replace(problem.params,
+                           schedule=replace(problem.params.schedule, stall_evaluations=stall))
+        counter = EvaluationCounter(None, None)
+        Search(p, counter).coarse(INITIAL, 0, "test")
+        histories[stall] = [loss for _, _, loss in counter.history]
+    full, cut = histories[0], histories[12]
+    assert len(cut) < len(full)
+    assert cut == full[:len(cut)]
+    fatol = problem.stages[0].fatol
+    mark, since = np.inf, 0
+    for value in cut:
+        mark, since = (value, 0) if value < mark - fatol else (mark, since + 1)
+    assert since == 12  # it stopped exactly when the rule says, not before

@@ -98,6 +98,9 @@ class ScheduleParams:
     # the basins chosen for refinement (a coarse Nelder-Mead often stops before the bottom)
     restarts: tuple[int, ...] = (1, 0, 1)
     xatol: float = 1e-3  # in units of the bounds
+    # a stage ends once its best loss has not dropped by more than its fatol for this many
+    # evaluations (the loss is piecewise constant: plateaus, not the tolerance, end a stage); 0 = off
+    stall_evaluations: int = 40
 
     def __post_init__(self) -> None:
         check_finite(self)
@@ -113,6 +116,8 @@ class ScheduleParams:
                ">= 1")
         check_rule("schedule.restarts", self.restarts, min(self.restarts) >= 0, ">= 0")
         check_rule("schedule.xatol", self.xatol, self.xatol > 0, "> 0")
+        check_rule("schedule.stall_evaluations", self.stall_evaluations,
+                   self.stall_evaluations >= 0, ">= 0")
         if self.scales[-1] != 1:
             raise ValueError("schedule: the last stage must be at full resolution (scale 1)")
 

@@ -34,6 +34,10 @@ from semcal_ros.engine.results import CalibrationResult, Progress, RunResult
 from semcal_ros.errors import CalibrationFailed, Cancelled, InputError  # Cancelled: raised here
 
 
+class _Stalled(Exception):
+    """Ends a Nelder-Mead stage whose best loss stopped improving (see Search.nelder_mead)."""
+
+
 class EvaluationCounter:
     """Counts evaluations, records history, reports progress, honours cancellation."""
 
@@ -93,6 +97,12 @@ class Search:
         (not its last simplex vertex) and that pose's loss."""
         st = self.problem.stages[stage]
         best: list = [np.inf, center]
+        # the loss is piecewise constant in the pose: near its end a stage wanders on plateaus
+        # until the simplex has shrunk below xatol, renders that cannot change the answer. It
+        # ends instead once its best loss has not dropped by more than fatol for this many
+        # evaluations (0: off, scipy's own tests only)
+        stall = self.problem.params.schedule.stall_evaluations
+        mark = [np.inf, 0]  # the best loss at the last real improvement, evaluations since
 
         def objective(s: np.ndarray) -> float:
             pose = self.pose_at(center, s)
@@ -100,13 +110,22 @@ class Search:
             self.counter.record(run, stage, value, pose)
             if value < best[0]:
                 best[0], best[1] = value, pose.vector()
+            if value < mark[0] - st.fatol:
+                mark[0], mark[1] = value, 0
+            else:
+                mark[1] += 1
+                if stall and mark[1] >= stall:
+                    raise _Stalled
             return value
 
         n = len(self.free)
-        minimize(objective, np.zeros(n), method="Nelder-Mead",
-                 options={"initial_simplex": _initial_simplex(n) * st.simplex,
-                          "xatol": self.problem.params.schedule.xatol, "fatol": st.fatol,
-                          "maxfev": st.max_evaluations})
+        try:
+            minimize(objective, np.zeros(n), method="Nelder-Mead",
+                     options={"initial_simplex": _initial_simplex(n) * st.simplex,
+                              "xatol": self.problem.params.schedule.xatol, "fatol": st.fatol,
+                              "maxfev": st.max_evaluations})
+        except _Stalled:
+            pass
         return best[1], float(best[0])
 
     def coarse(self, start: Pose, run: int, label: str) -> tuple[np.ndarray, float]:
