@@ -262,7 +262,8 @@ class CameraModel:
             rd = equidistant_radius(t, *self.d)
         elif self.model == "rational_polynomial":
             t = np.linspace(0.0, 50.0, 50001)
-            rd, _ = distort_rational(t, 0.0, *self.d[:2], 0.0, 0.0, *self.d[4:])
+            k1, k2, _p1, _p2, k3, k4, k5, k6 = (float(v) for v in self.d)
+            rd, _ = distort_rational(t, 0.0, k1, k2, 0.0, 0.0, k3, k4, k5, k6)
         else:
             return math.inf
         falling = np.flatnonzero(np.diff(rd) <= 0)

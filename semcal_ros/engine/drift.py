@@ -242,7 +242,8 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     else:
         vec_d = best.translation - calibrated.translation
     return DriftReport(level, why, calibrated, best, float(dt), float(dr),
-                       tuple(float(v) for v in vec_d), float(start.loss), float(loss_best),
+                       (float(vec_d[0]), float(vec_d[1]), float(vec_d[2])), float(start.loss),
+                       float(loss_best),
                        float(start.coverage), counter.evaluations + 1, seconds,
                        raw_vector=raw_vec, raw_gain=float(raw_gain))
 
