@@ -67,7 +67,7 @@ def main() -> None:
     head = f"{'frame':<26}" + "".join(f"{s:>34}" for s in args.suffixes)
     print(head + "\n" + "-" * len(head))
     totals: dict[str, list[float]] = {s: [] for s in args.suffixes}
-    notes = []
+    checks: dict[str, list[tuple[float, float, float]]] = {s: [] for s in args.suffixes}
     for name in names:
         ideal = files.read_label_image(args.root / f"{name}_ideal" / "labels.png")
         row = f"{name:<26}"
@@ -89,13 +89,17 @@ def main() -> None:
                 probs = read_probabilities(scene / "probabilities.npz", labels.shape)
                 agree, tied = argmax_agrees(probs, labels)
                 top = float(probs.max(axis=2).astype(np.float32).mean())
-                notes.append(f"{scene.name}: probabilities argmax == labels on "
-                             f"{100 * agree:.4f} % (ties {100 * tied:.4f} %), mean top "
-                             f"probability {top:.3f}")
+                checks[suffix].append((agree, tied, top))
         print(row, flush=True)
     print("median" + " " * 20 + "".join(
         f"{(100 * np.median(v) if v else float('nan')):>34.1f}" for v in totals.values()))
-    print("\n".join(notes))
+    for suffix, found in checks.items():
+        if found:
+            agree, tied, top = (np.array(v) for v in zip(*found))
+            print(f"{suffix}: probabilities.npz in {len(found)} scenes: argmax == labels on >= "
+                  f"{100 * agree.min():.4f} % of labelled pixels (top tied after float16: <= "
+                  f"{100 * tied.max():.4f} %), mean top probability {top.min():.2f}-"
+                  f"{top.max():.2f}")
 
 
 if __name__ == "__main__":
