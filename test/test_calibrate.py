@@ -138,7 +138,7 @@ def test_cli_unknown_parameter(case, capsys):
 
 def test_cli_yaw_search_flag_reaches_the_engine(case, monkeypatch, capsys):
     """`--yaw-search` sets engine.search.yaw_search for this run (the file's setting otherwise)."""
-    import semcal_ros.engine.search as search
+    import semcal_ros.engine.calibration as calibration
 
     seen = []
 
@@ -146,7 +146,7 @@ def test_cli_yaw_search_flag_reaches_the_engine(case, monkeypatch, capsys):
         seen.append(a[4] if len(a) > 4 else kw["params"])
         raise ValueError("recorded")
 
-    monkeypatch.setattr(search, "calibrate", record)
+    monkeypatch.setattr(calibration, "calibrate_and_draw", record)
     assert "recorded" in _error_of(args(case) + ["--yaw-search"], capsys)
     assert "recorded" in _error_of(args(case), capsys)
     assert [p.search.yaw_search for p in seen] == [True, False]

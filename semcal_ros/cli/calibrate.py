@@ -83,12 +83,11 @@ def _run(args: argparse.Namespace) -> int:
 
     from semcal_ros.engine import validation
     from semcal_ros.io import files, ply
-    from semcal_ros.engine.labels import LabelMapping, colorize
-    from semcal_ros.engine.results import Progress
-    from semcal_ros.engine.search import calibrate
+    from semcal_ros.engine.calibration import calibrate_and_draw
+    from semcal_ros.engine.labels import LabelMapping
+    from semcal_ros.engine.overlay import loss_curve
     from semcal_ros.engine.params import CalibrationParams
-    from semcal_ros.engine.problem import mapping_for
-    from semcal_ros.engine.overlay import annotate_quality, loss_curve, render_overlay
+    from semcal_ros.engine.results import Progress
 
     # everything checkable is checked before the work starts (the same checks as the action)
     params = CalibrationParams.from_file(args.config)
@@ -136,13 +135,14 @@ def _run(args: argparse.Namespace) -> int:
         bar.update(p.evaluations - bar.n)
         bar.set_postfix_str(f"best loss {p.best_loss:.5f}")
 
-    try:
-        result = calibrate(cloud, labels, camera, initial, params, mapping, args.seed, progress,
-                           probabilities=probabilities)
+    try:  # the calibrator node runs the same function (a degenerate result: CalibrationFailed)
+        calibration = calibrate_and_draw(cloud, labels, camera, initial, params, mapping,
+                                         probabilities=probabilities, background=rgb,
+                                         draw=bool(args.overlay), seed=args.seed,
+                                         progress=progress)
     finally:
         bar.close()
-    validation.check(validation.result_problems(float(result.loss), params),
-                     "calibration failed: ")
+    result = calibration.result
     files.write_pose(args.output, result.pose, result.to_dict())
     rpy = result.pose.body_rpy_deg()
     t = result.pose.translation
@@ -154,15 +154,12 @@ def _run(args: argparse.Namespace) -> int:
     if result.quality is not None:
         print(f"quality {result.quality.summary()}")
     print(f"result written to {args.output}")
-    if args.overlay:
-        background = rgb if rgb is not None else colorize(labels)
-        picture = render_overlay(cloud, camera, result.pose, background,
-                                 mapping_for(params, mapping), params.render)
-        if result.quality is not None:
-            picture = annotate_quality(picture, result.quality)
-        files.write_rgb_image(args.overlay, picture)
-        print(f"overlay written to {args.overlay}")
     if args.loss_curve:
         files.write_rgb_image(args.loss_curve, loss_curve(result.history))
         print(f"loss curve written to {args.loss_curve}")
+    if args.overlay:
+        if calibration.overlay is None:  # the result stands; the picture is a by-product
+            raise ValueError(f"overlay not drawn: {calibration.overlay_error}")
+        files.write_rgb_image(args.overlay, calibration.overlay)
+        print(f"overlay written to {args.overlay}")
     return 0
