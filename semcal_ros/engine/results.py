@@ -82,10 +82,24 @@ class CalibrationResult:
     history: list[tuple[int, int, float]] = field(default_factory=list)  # (run, stage, loss)
     runs: list[RunResult] = field(default_factory=list)
     accepted: int = 1  # starts that ended in the result's basin
-    spread_translation_m: float = 0.0  # RMS distance of those starts' poses from the result
-    spread_rotation_deg: float = 0.0
-    coverage: float = 0.0  # share of the target's non-sky pixels the map covers at the result
     quality: QualityReport | None = None  # how good, without ground truth (semcal_ros.engine.quality)
+
+    # One home per fact: the quality report measured these; the result refers to it (0 without
+    # a report).
+    @property
+    def spread_translation_m(self) -> float:
+        """RMS distance of the agreeing starts' poses from the result (m)."""
+        return self.quality.spread_translation_m if self.quality is not None else 0.0
+
+    @property
+    def spread_rotation_deg(self) -> float:
+        """RMS angle of the agreeing starts' poses from the result (deg)."""
+        return self.quality.spread_rotation_deg if self.quality is not None else 0.0
+
+    @property
+    def coverage(self) -> float:
+        """Share of the target's non-sky pixels the map covers at the result."""
+        return self.quality.coverage if self.quality is not None else 0.0
 
     def to_dict(self) -> dict:
         """The fields a result pose YAML adds to the pose itself."""
