@@ -7,7 +7,7 @@ vertical-angle correction) and each is measured against the camera:
 
 - the loss (calibrator.yaml's engine settings) at the true pose and along map x (forward), y, z:
   where the minimum sits, without a search;
-- the paper's protocol (`semcal_tools.evaluation.evaluate_scene`: starts +-2.5 m / +-5 deg, the
+- the paper's protocol (`semcal_tools.protocol.evaluate_scene`: starts +-2.5 m / +-5 deg, the
   engine's full default procedure per start), with --runs starts, keeping --keep.
 
 Run it under the shared lock (it calibrates):
@@ -154,7 +154,7 @@ def main() -> int:
     if not KITTI.is_dir():
         print(f"KITTI data absent: {KITTI}")
         return 1
-    from semcal_tools.evaluation import ProtocolParams, evaluate_scene
+    from semcal_tools.protocol import ProtocolParams, evaluate_scene
     from semcal_ros.engine.params import CalibrationParams
 
     names = [v.strip() for v in args.variants.split(",") if v.strip()]

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
 from semcal_ros.io.ply import read_ply
-from semcal_tools.evaluation import ProtocolParams, initial_guesses
+from semcal_tools.protocol import ProtocolParams, initial_guesses
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.problem import Problem
 from semcal_ros.engine.search import solve

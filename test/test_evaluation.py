@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from semcal_tools.evaluation import (
+from semcal_tools.protocol import (
     ProtocolParams, evaluate_scene, format_table, initial_guesses, summarize,
 )
 from semcal_ros.io.files import pose_from_dict, read_pose
@@ -132,7 +132,7 @@ def test_a_refused_start_counts_as_a_failed_run(demo_scene: Path):
 def test_cli_start_ranges_and_yaw_search_reach_the_protocol(demo_scene: Path, monkeypatch):
     """`--start-xyz/--start-pitch/--start-yaw` set the starts' ranges, `--yaw-search` the engine's
     full-circle heading search (the basin study in docs/engine.md runs through these)."""
-    import semcal_tools.evaluation as evaluation
+    import semcal_tools.protocol as evaluation
     from semcal_ros.cli import main
 
     seen = []

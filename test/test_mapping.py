@@ -16,7 +16,7 @@ from semcal_ros.io.ply import read_ply
 from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.mapping import (
     MapBuildParams, ScanInput, ScanRejected, StreamingMapBuilder, build_map)
-from semcal_ros.mapping import evaluation, filters
+from semcal_ros.mapping import accuracy, filters
 from semcal_ros.mapping.pose_stream import PoseNotCovered, PoseStream
 from semcal_ros.mapping.registration import (
     RegistrationParams, anchor, pairwise_icp, registration_cloud, rotation_deg)
@@ -201,12 +201,12 @@ def test_time_going_back_strays_and_jumps():
 
 def test_evaluation_helpers():
     poses = drive(5)
-    noisy = evaluation.perturb_poses(poses, 0.3, 1.0, seed=3)
-    t, r = evaluation.pose_errors(noisy, poses)
+    noisy = accuracy.displace_poses(poses, 0.3, 1.0, seed=3)
+    t, r = accuracy.pose_errors(noisy, poses)
     np.testing.assert_allclose(t, 0.3, atol=1e-9)
     np.testing.assert_allclose(r, 1.0, atol=1e-6)
     shifted = np.array([_pose(1.0, 2.0) @ p for p in poses])  # one common motion
-    t, r = evaluation.pose_errors(evaluation.remove_common_transform(shifted, poses), poses)
+    t, r = accuracy.pose_errors(accuracy.remove_common_transform(shifted, poses), poses)
     assert t.max() < 1e-9 and r.max() < 1e-6
 
 
@@ -260,8 +260,8 @@ def test_scene_pose_noise_is_refined(scene_factory, record_property):
     assert not result.skipped and all(p.accepted for p in result.pairs)
     figures = {}
     for name, poses in (("given", given.poses), ("refined", result.refined_poses)):
-        t, r = evaluation.pose_errors(evaluation.remove_common_transform(poses, truth), truth)
-        t_raw, r_raw = evaluation.pose_errors(poses, truth)
+        t, r = accuracy.pose_errors(accuracy.remove_common_transform(poses, truth), truth)
+        t_raw, r_raw = accuracy.pose_errors(poses, truth)
         figures[name] = (t.max(), r.max(), t_raw.max(), r_raw.max())
         record_property(f"{name} max error cm/deg (common motion removed; raw)",
                         [round(t.max() * 100, 2), round(r.max(), 3),
@@ -357,18 +357,18 @@ def kitti_scans():
         pytest.skip(f"real KITTI data absent ({KITTI})")
     seq = kitti.open_sequence(KITTI)
     scans = [filters.range_filter(seq.scan(i), 60.0) for i in range(len(seq))]
-    above = [s.xyz[evaluation.above_ground(s.xyz)] for s in scans]
+    above = [s.xyz[accuracy.above_ground(s.xyz)] for s in scans]
     return seq, scans, above
 
 
 def _alignment(above, poses):
-    return evaluation.scan_alignment([filters.apply_rigid(a, p) for a, p in zip(above, poses)])
+    return accuracy.scan_alignment([filters.apply_rigid(a, p) for a, p in zip(above, poses)])
 
 
 @needs_kitti
 def test_kitti_refined_map_alignment_recovers_from_pose_noise(kitti_scans, record_property):
     seq, scans, above = kitti_scans
-    noisy = evaluation.perturb_poses(seq.poses, 0.3, 1.0, seed=0)
+    noisy = accuracy.displace_poses(seq.poses, 0.3, 1.0, seed=0)
     result = build_map([ScanInput(s, p, t, str(i)) for i, (s, p, t) in
                         enumerate(zip(scans, noisy, seq.stamps))], MapBuildParams())
     figures = {"true poses, no ICP": _alignment(above, seq.poses),
@@ -557,7 +557,7 @@ def test_place_scans_anchors_the_chosen_scan(world):
     start = drive(1)[0]
     twist = np.array([8.0, 0.0, 0.0, 0.0, 0.0, np.radians(6.0)])
     sweeps, true_poses = _moving_sweeps(world, start, twist, 4)
-    noisy = evaluation.perturb_poses(true_poses, 0.15, 0.5, seed=3)
+    noisy = accuracy.displace_poses(true_poses, 0.15, 0.5, seed=3)
     deskew = DeskewParams(source="field")
     times = [field_times(t, deskew) for _, t, _ in sweeps]
     placed = place_scans([x for x, _, _ in sweeps], list(noisy), 2, times=times,

@@ -125,7 +125,7 @@ def _open_input(args: argparse.Namespace):
 def _print_corrections(result, reference, noisy_input) -> None:
     import numpy as np
 
-    from semcal_ros.mapping.evaluation import pose_errors, remove_common_transform
+    from semcal_ros.mapping.accuracy import pose_errors, remove_common_transform
 
     shift, angle = result.pose_changes()
     if len(shift) == 0:
@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     from semcal_ros.io.ply import write_ply
     from semcal_ros.io.scene_scans import write_scan_poses
     from semcal_ros.mapping import ScanInput, build_map
-    from semcal_ros.mapping.evaluation import perturb_poses
+    from semcal_ros.mapping.accuracy import displace_poses
 
     start = time.perf_counter()
     ids, stamps, poses, loader, reference, crop_center = _open_input(args)
@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     reference = None if reference is None else reference[chosen]
     if args.pose_noise is not None:
         reference = given if reference is None else reference
-        given = perturb_poses(given, args.pose_noise[0], args.pose_noise[1], args.seed)
+        given = displace_poses(given, args.pose_noise[0], args.pose_noise[1], args.seed)
         print(f"poses perturbed by {args.pose_noise[0]} m / {args.pose_noise[1]} deg "
               f"(seed {args.seed})")
     items = [ScanInput((lambda i=i: loader(i)), given[k], float(stamps[i]), ids[i])

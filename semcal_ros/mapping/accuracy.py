@@ -16,9 +16,11 @@ from scipy.spatial.transform import Rotation
 from semcal_ros.mapping.registration import anchor, rotation_deg
 
 
-def perturb_poses(poses: np.ndarray, translation_m: float, rotation_deg_: float,
-                  seed: int | None = 0) -> np.ndarray:
-    """Each pose moved by exactly ``translation_m`` and turned by exactly ``rotation_deg_``.
+def displace_poses(poses: np.ndarray, translation_m: float, rotation_deg_: float,
+                   seed: int | None = 0) -> np.ndarray:
+    """Each pose moved by exactly ``translation_m`` and turned by exactly ``rotation_deg_``
+    (a fixed-size error per scan; the scenes' smooth 1-sigma localisation error is
+    :func:`semcal_tools.scenes.generate.localisation_noise`).
 
     Directions and axes are uniformly random (seeded). The noise acts in the sensor's own frame
     (``pose @ noise``): a heading error turns the scan about the lidar, as a bad compass would.

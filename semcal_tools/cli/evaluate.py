@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from semcal_tools.evaluation import ProtocolParams, evaluate_scene, format_table
+    from semcal_tools.protocol import ProtocolParams, evaluate_scene, format_table
     from semcal_ros.engine.labels import LabelMapping
     from semcal_ros.engine.params import CalibrationParams
 
@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
 def _table_from_json(paths, paper: bool) -> int:
     import json
 
-    from semcal_tools.evaluation import SceneEvaluation, format_table
+    from semcal_tools.protocol import SceneEvaluation, format_table
 
     results = []
     for path in paths:

@@ -315,8 +315,8 @@ def vehicle_poses(layout: Layout, options: SceneOptions, rng: np.random.Generato
     return times, positions, quats
 
 
-def perturb_poses(positions: np.ndarray, quats: np.ndarray, rng: np.random.Generator,
-                  sigma_m: float, sigma_deg: float) -> tuple[np.ndarray, np.ndarray]:
+def localisation_noise(positions: np.ndarray, quats: np.ndarray, rng: np.random.Generator,
+                       sigma_m: float, sigma_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Localisation error: smooth random offsets (correlated over ~0.3 s) of the given 1-sigma.
 
     White noise through a unit-sum Gaussian filter loses variance by sum(w^2) ~ 1/(2 sqrt(pi) s);
@@ -532,8 +532,9 @@ def generate_scene(out: str | Path, kind: str = "junction", seed: int = 0,
     stamps = options.start_stamp + times
     reported_pos, reported_q = positions, quats  # layout frame; written in the map frame
     if variant == "pose_noise":
-        reported_pos, reported_q = perturb_poses(positions, quats, _rng(seed, kind, "noise"),
-                                                 options.pose_noise_m, options.pose_noise_deg)
+        reported_pos, reported_q = localisation_noise(
+            positions, quats, _rng(seed, kind, "noise"), options.pose_noise_m,
+            options.pose_noise_deg)
     written_pos, written_q = frame.points(reported_pos), frame.quaternions(reported_q)
     scan_dir = out / "scans"
     scan_dir.mkdir()
