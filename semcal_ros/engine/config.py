@@ -14,6 +14,8 @@ from typing import Any, TypeVar
 
 import yaml
 
+from semcal_ros.errors import UnknownParameter
+
 T = TypeVar("T")
 
 
@@ -61,7 +63,7 @@ def apply_flat(obj: T, flat: dict[str, Any], strict: bool = True) -> T:
     known = dataclass_fields_flat(obj)
     unknown = sorted(set(flat) - set(known))
     if strict and unknown:
-        raise ValueError(f"unknown parameter(s): {', '.join(unknown)}")
+        raise UnknownParameter(f"unknown parameter(s): {', '.join(unknown)}")
     return _apply(obj, {k: v for k, v in flat.items() if k in known}, "")
 
 

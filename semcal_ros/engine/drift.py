@@ -38,6 +38,7 @@ from semcal_ros.engine.params import CalibrationParams, ScheduleParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Problem, mapping_for
 from semcal_ros.engine.render import PreparedMap, prepare_map
+from semcal_ros.errors import InputError, UnknownParameter
 
 LEVELS = ("ok", "warn", "error", "unknown")
 #: diagnostic_msgs/DiagnosticStatus levels (OK, WARN, ERROR, STALE for "cannot judge")
@@ -94,9 +95,10 @@ class DriftParams:
                 if k.startswith("drift.")}
         try:
             return apply_flat(cls(), flat, strict=True)
-        except ValueError as exc:
-            raise ValueError(f"{path}: drift.{exc}" if "unknown" not in str(exc)
-                             else f"{path}: drift group: {exc}") from None
+        except UnknownParameter as exc:
+            raise InputError(f"{path}: drift group: {exc}") from None
+        except ValueError as exc:  # a value a parameter cannot take: its check names it
+            raise InputError(f"{path}: {exc}") from None
 
 
 @dataclass(frozen=True)
