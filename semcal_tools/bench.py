@@ -26,6 +26,7 @@ from semcal_ros.engine.params import CalibrationParams, ScheduleParams, Verifica
 from semcal_ros.engine.render.view import RenderParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.render import fast, prepare_map, reference, view_for
+from semcal_tools.protocol import ProtocolParams, initial_guesses
 from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world_of_size, target_image
 
 
@@ -40,10 +41,8 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
 
 
 def _starts(n: int, seed: int = 0) -> list[Pose]:
-    rng = np.random.default_rng(seed)
-    return [Pose.from_body_rpy_deg(GROUND_TRUTH.translation + rng.uniform(-2.5, 2.5, 3),
-                                   GROUND_TRUTH.body_rpy_deg() + np.r_[0.0, rng.uniform(-5, 5, 2)])
-            for _ in range(n)]
+    """The paper's starts (+-2.5 m, +-5 deg) around the bench street's truth."""
+    return initial_guesses(GROUND_TRUTH, ProtocolParams(runs=n, keep=1, seed=seed))
 
 
 def run_benchmarks(sizes: tuple[int, ...] = (100_000, 1_000_000, 3_000_000), repeats: int = 15,

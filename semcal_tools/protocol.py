@@ -92,7 +92,9 @@ def summarize(losses: np.ndarray, translation_m: np.ndarray, rotation_deg: np.nd
 
 
 def initial_guesses(truth: Pose, protocol: ProtocolParams) -> list[Pose]:
-    """``runs`` starts: uniform noise in x, y, z, pitch and yaw around the truth (seeded)."""
+    """``runs`` starts: uniform noise in x, y, z, pitch and yaw around the truth (seeded). The
+    bench uses these too; :func:`semcal_ros.engine.pose.perturbed_initial` (one demo start, angles
+    drawn first) is kept apart so that scenes and stored protocol figures stay reproducible."""
     rng = np.random.default_rng(protocol.seed)
     rpy = truth.body_rpy_deg()
     out = []
