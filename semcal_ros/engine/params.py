@@ -100,7 +100,7 @@ class ScheduleParams:
     xatol: float = 1e-3  # in units of the bounds
     # a stage ends once its best loss has not dropped by more than its fatol for this many
     # evaluations (the loss is piecewise constant: plateaus, not the tolerance, end a stage); 0 = off
-    stall_evaluations: int = 40
+    stall_evaluations: int = 0
 
     def __post_init__(self) -> None:
         check_finite(self)
