@@ -369,17 +369,21 @@ class LabelLoss:
         self.mi = params.kind == "mi"
         self.banded = self.band_px > 0 and not self.mi
         self.soft = probabilities is not None
-        if self.soft and probabilities.shape != self.shape + (N_CLASSES,):
-            raise ValueError(f"probabilities {probabilities.shape} do not fit the labels "
-                             f"{self.shape}")
-        self.dist = (class_distances(target_aligned, self.band_px)
-                     if self.banded and not self.soft else np.zeros((1, 1), np.uint8))
-        self.costs = (expected_costs(probabilities, self.table, target_aligned,
-                                     self.band_px if self.banded else 0.0)
-                      if self.soft and not self.mi else None)
-        self.probabilities = (np.ascontiguousarray(probabilities.reshape(-1, N_CLASSES),
-                                                   dtype=np.float32)
-                              if self.soft and self.mi else np.zeros((1, N_CLASSES), np.float32))
+        self.costs: np.ndarray | None = None
+        self.probabilities = np.zeros((1, N_CLASSES), np.float32)
+        self.dist = np.zeros((1, 1), np.uint8)
+        if probabilities is not None:
+            if probabilities.shape != self.shape + (N_CLASSES,):
+                raise ValueError(f"probabilities {probabilities.shape} do not fit the labels "
+                                 f"{self.shape}")
+            if self.mi:
+                self.probabilities = np.ascontiguousarray(
+                    probabilities.reshape(-1, N_CLASSES), dtype=np.float32)
+            else:
+                self.costs = expected_costs(probabilities, self.table, target_aligned,
+                                            self.band_px if self.banded else 0.0)
+        elif self.banded:
+            self.dist = class_distances(target_aligned, self.band_px)
         if self.mi:  # H(T) over the (fixed) valid pixels: the normaliser of H(T | R)
             joint = np.zeros((N_CLASSES + 1, N_CLASSES))
             _joint_kernel(np.full(self.target.shape, INVALID, np.uint8), self.target,

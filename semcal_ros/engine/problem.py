@@ -88,8 +88,11 @@ class Problem:
         rp = self.params.render
         # a map prepared once serves every camera and goal on it (multi-camera calibrator, drift
         # watch); it must have been prepared with this problem's label mapping
-        self.pmap: PreparedMap = prepared if prepared is not None else prepare_map(
-            map_cloud, self.mapping, center=center, radius=rp.crop_radius or None)
+        if prepared is None:
+            assert map_cloud is not None  # checked above: one of the two is given
+            prepared = prepare_map(map_cloud, self.mapping, center=center,
+                                   radius=rp.crop_radius or None)
+        self.pmap: PreparedMap = prepared
         self.target = self.mapping.map_image(target)
         if np.all(self.target == INVALID):
             raise ValueError("label image has no pixel of a class the map can match")
