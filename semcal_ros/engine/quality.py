@@ -206,8 +206,9 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         verdict, reason = "good", "every axis pinned down, labels agree"
     return QualityReport(
         verdict=verdict, reason=reason, agreement=agreement, agreement_per_class=per_class,
-        coverage=coverage, uncertainty_translation_m=tuple(float(v) for v in unc[:3]),
-        uncertainty_rpy_deg=tuple(float(v) for v in unc[3:]), unconstrained=loose,
+        coverage=coverage,
+        uncertainty_translation_m=(float(unc[0]), float(unc[1]), float(unc[2])),
+        uncertainty_rpy_deg=(float(unc[3]), float(unc[4]), float(unc[5])), unconstrained=loose,
         spread_translation_m=float(np.sqrt(np.mean(np.square(dt)))) if dt else 0.0,
         spread_rotation_deg=float(np.sqrt(np.mean(np.square(dr)))) if dr else 0.0,
         evaluations=spent + 1, roll_free=sp.free_roll)

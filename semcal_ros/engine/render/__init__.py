@@ -7,14 +7,6 @@ readable definition) and ``fast`` (numba, two threads, chunk culling; what the o
 from semcal_ros.engine.render.prepare import PreparedMap, prepare_map
 from semcal_ros.engine.render.view import View, ViewSetup, make_view, view_for, view_setup
 
-__all__ = ["PreparedMap", "View", "ViewSetup", "make_view", "prepare_map", "render_labels",
+__all__ = ["PreparedMap", "View", "ViewSetup", "make_view", "prepare_map",
            "view_for", "view_setup"]
 
-
-def render_labels(pmap: PreparedMap, view: View, fast: bool = True):
-    """Aligned label image (uint8, INVALID where no point landed)."""
-    if fast:
-        from semcal_ros.engine.render.fast import render
-    else:
-        from semcal_ros.engine.render.reference import render
-    return render(pmap, view)

@@ -27,7 +27,7 @@ from semcal_ros.engine.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS,
 # time of the other jobs (measured: 10-20 % less CPU per render, same wall time).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 if not os.environ.get("NUMBA_THREADING_LAYER"):
-    numba.config.THREADING_LAYER = "omp"
+    numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]
 
 _distort = numba.njit(cache=True, inline="always")(distort)
 _distort_rational = numba.njit(cache=True, inline="always")(distort_rational)
