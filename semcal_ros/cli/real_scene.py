@@ -236,8 +236,9 @@ def print_report(out: Path, inputs, report) -> None:
     if any(report.moved_vehicles):
         print(f"  vehicles that moved between scans (removed): {report.moved_vehicles} "
               "clusters per scan")
-    print(f"  removed from the map: {report.removed_points} points "
-          f"({'all vehicles' if 'parked_vehicles' not in report.engine.get('labels', {}) else 'moving classes'})")
+    removed = ("all vehicles" if "parked_vehicles" not in report.engine.get("labels", {})
+               else "moving classes")
+    print(f"  removed from the map: {report.removed_points} points ({removed})")
     print(f"  map label shares: {shares(report.map_shares)}")
     print(f"  image label shares (labelled pixels): {shares(report.image_shares)}")
     print(f"  calibrator.yaml engine: {report.engine}")
