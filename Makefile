@@ -22,7 +22,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/semcal bench
 
-# ruff on the whole tree (rules in ruff.toml), mypy on the engine (settings in setup.cfg)
+# ruff on the whole tree (rules in ruff.toml), mypy on the engine (settings in setup.cfg); CI runs it
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy semcal_ros/engine

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from semcal_ros.engine.drift import DriftChecker, DriftParams, DriftReport
 from semcal_ros.engine.drift_watch import REFERENCE_MESSAGE, DriftWatch

@@ -74,7 +74,8 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
         assert all(m.level == CalibrationDrift.OK for m in unchanged), \
             [m.message for m in unchanged]
         assert all(m.camera_frame_id == camera.frame_id for m in unchanged)
-        assert all(np.isfinite(m.seconds) and m.seconds > 0 for m in unchanged)  # its duration: a figure of bench_drift
+        # its duration: a figure of bench_drift
+        assert all(np.isfinite(m.seconds) and m.seconds > 0 for m in unchanged)
 
         # bad input: a label image of the wrong encoding, a calibration with NaN: one line each,
         # the node keeps what it held and keeps checking
