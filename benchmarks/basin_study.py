@@ -4,11 +4,11 @@ For each layout scene and each start condition (translation / yaw / pitch error 
 without the full-circle yaw search) runs ``semcal evaluate --runs N --keep N`` (every start
 counted) under the shared heavy-job lock, one condition at a time, and collects per condition:
 the share of starts within 5 cm & 0.1 deg, the mean error and the seconds per run. Results are
-appended to a JSON-lines file so that an interrupted study resumes; ``--plot`` draws the table.
+appended to a JSON-lines file so that an interrupted study resumes.
 
 Usage:
   python benchmarks/basin_study.py --scenes DIR [DIR ...] --runs 4 --out basin.jsonl
-  python benchmarks/basin_study.py --out basin.jsonl --table --plot docs/img/basin.png
+  python benchmarks/basin_study.py --out basin.jsonl --table
 """
 
 from __future__ import annotations
@@ -80,32 +80,6 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def plot(rows: list[dict], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    labels = [c[0] for c in CONDITIONS if any(r["condition"] == c[0] for r in rows)]
-    scenes = sorted({r["scene"] for r in rows})
-    fig, ax = plt.subplots(figsize=(9, 3.6))
-    width = 0.8 / max(len(scenes), 1)
-    for k, s in enumerate(scenes):
-        share = []
-        for label in labels:
-            c = [r for r in rows if r["condition"] == label and r["scene"] == s]
-            share.append(100 * np.mean([r["t_m"] <= 0.05 and r["r_deg"] <= 0.1 for r in c]) if c else 0)
-        ax.bar(np.arange(len(labels)) + k * width, share, width, label=s)
-    ax.set_xticks(np.arange(len(labels)) + 0.4 - width / 2)
-    ax.set_xticklabels(labels, rotation=20, ha="right", fontsize=7)
-    ax.set_ylabel("starts within 5 cm & 0.1 deg, %")
-    ax.set_ylim(0, 105)
-    ax.axhline(90, color="grey", lw=0.8, ls="--")
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="*", default=[], help="scene folders (one per layout)")
@@ -114,7 +88,6 @@ def main() -> int:
     ap.add_argument("--conditions", default="", help="comma list of condition indices (default all)")
     ap.add_argument("--out", required=True, help="JSON lines, appended (resumes)")
     ap.add_argument("--table", action="store_true")
-    ap.add_argument("--plot", help="PNG of the shares per condition and layout")
     a = ap.parse_args()
     out = Path(a.out)
     rows = [json.loads(x) for x in out.read_text().splitlines()] if out.is_file() else []
@@ -134,9 +107,6 @@ def main() -> int:
                   flush=True)
     if a.table or not a.scenes:
         print(table(rows))
-    if a.plot:
-        plot(rows, Path(a.plot))
-        print(f"plot: {a.plot}")
     return 0
 
 
