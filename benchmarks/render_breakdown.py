@@ -24,7 +24,6 @@ import time
 import numba
 import numpy as np
 
-from semcal_ros.engine.labels import INVALID
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.problem import Problem
 from semcal_ros.engine.render import fast, reference
@@ -91,7 +90,7 @@ def _variant(xyz, label, cc, cr, r, t, intr, dc, bounds, lam0, lod, rmax, near, 
                 if uu >= 0 and uu < width and vv >= 0 and vv < height:
                     idx = vv * width + uu
                     key = np.uint32((min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) |
-                                    (lab if core[o] else INVALID))
+                                    (lab | core[o]))
                     if key < zb[idx]:
                         zb[idx] = key
     return zb, acc, visited, drawn, writes
@@ -101,7 +100,7 @@ def _args(pmap, v, mode):
     return (pmap.xyz, pmap.label, pmap.chunk_center, pmap.chunk_radius, v.rotation,
             v.translation, v.intrinsics, v.distortion, v.bounds, v.splat_lambda, v.lod_radius,
             v.radius_max, v.near, v.far, v.disc_offsets, v.disc_start, v.disc_falloff,
-            v.disc_core, v.width, v.height, mode)
+            v.disc_rim, v.width, v.height, mode)
 
 
 def breakdown(name: str, problem: Problem, pose, repeats: int) -> None:

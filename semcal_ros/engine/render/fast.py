@@ -2,10 +2,11 @@
 
 Why numba and not a library: no available renderer does strict z-buffered label splats on the CPU
 at this speed (Open3D's offscreen renderer needs software Vulkan and is ~100x slower; see
-shared/notes/performance-facts.md). Speed comes from three things: chunks of 1024 Morton-sorted
+shared/notes/performance-facts.md). Speed comes from four things: chunks of 1024 Morton-sorted
 points are skipped when their bounding sphere is outside the view frustum; each thread owns a
-z-buffer (no atomics) merged at the end; points are read as float32 and computed in float64 exactly
-as the reference does.
+z-buffer (no atomics) merged at the end; a chunk's points are projected in one branch-free pass over
+contiguous x, y, z rows (vectorised) before its discs are written, with a min-store per pixel and no
+branch; points are read as float32 and computed in float64 exactly as the reference does.
 """
 
 from __future__ import annotations
@@ -74,55 +75,131 @@ def _chunk_visible_fisheye(c, rad, r, t, near, far, limit):
     return angle - math.asin(rad / cdist) <= limit
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _project_pinhole(coords, first, m, r, t, intr, dist_c, distorted, rational, bounds, lam, limit,
+                     near, far, ok, uf, vf, sf, ds):
+    """Pass 1 for the pinhole models (plumb_bob, rational_polynomial): pixel, radius step and
+    range of points ``first .. first + m``, and whether each is in view, into the thread's
+    scratch rows. Branch-free over contiguous x, y, z rows, so LLVM runs it four points per
+    instruction (measured: 2.5x faster than the same arithmetic point by point from (N, 3))."""
+    xs, ys, zs = coords[0], coords[1], coords[2]
+    r00, r01, r02, r10, r11, r12 = r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2]
+    r20, r21, r22, t0, t1, t2 = r[2, 0], r[2, 1], r[2, 2], t[0], t[1], t[2]
+    fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
+    k1, k2, p1, p2, k3 = dist_c[0], dist_c[1], dist_c[2], dist_c[3], dist_c[4]
+    k4, k5, k6 = dist_c[5], dist_c[6], dist_c[7]
+    xmin, xmax, ymin, ymax = bounds[0], bounds[1], bounds[2], bounds[3]
+    for j in range(m):
+        x = np.float64(xs[first + j])
+        y = np.float64(ys[first + j])
+        z = np.float64(zs[first + j])
+        xc = r00 * x + r01 * y + r02 * z + t0
+        yc = r10 * x + r11 * y + r12 * z + t1
+        zc = r20 * x + r21 * y + r22 * z + t2
+        dist = math.sqrt(xc * xc + yc * yc + zc * zc)
+        xn = xc / zc
+        yn = yc / zc
+        good = (zc > near) & (dist < far) & (xn >= xmin) & (xn <= xmax) & (yn >= ymin) & \
+            (yn <= ymax)
+        if rational:
+            good = good & (xn * xn + yn * yn <= limit)
+            xd, yd = _distort_rational(xn, yn, k1, k2, p1, p2, k3, k4, k5, k6)
+        elif distorted:
+            xd, yd = _distort(xn, yn, k1, k2, p1, p2, k3)
+        else:
+            xd, yd = xn, yn
+        ok[j] = good
+        uf[j] = math.floor(fx * xd + cx + 0.5)
+        vf[j] = math.floor(fy * yd + cy + 0.5)
+        sf[j] = math.floor(lam / dist * RADIUS_STEPS)
+        ds[j] = dist
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _project_fisheye(coords, first, m, r, t, intr, dist_c, lam, limit, near, far, span, width,
+                     height, ok, uf, vf, sf, ds):
+    """Pass 1 for the equidistant lens (point by point: atan2 does not vectorise). Centres off
+    the image whose discs cannot reach it are out, as in reference.project_points."""
+    fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
+    for j in range(m):
+        x = np.float64(coords[0, first + j])
+        y = np.float64(coords[1, first + j])
+        z = np.float64(coords[2, first + j])
+        xc = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
+        yc = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
+        zc = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
+        dist = math.sqrt(xc * xc + yc * yc + zc * zc)
+        ok[j] = False
+        if not (dist > near and dist < far):
+            continue
+        # k1..k4 of the equidistant model are the first four coefficients
+        xd, yd, theta = project_equidistant(xc, yc, zc, dist_c[0], dist_c[1], dist_c[2],
+                                            dist_c[3])
+        if not theta <= limit:
+            continue
+        u = math.floor(fx * xd + cx + 0.5)
+        v = math.floor(fy * yd + cy + 0.5)
+        if not (-span <= u < width + span and -span <= v < height + span):
+            continue
+        ok[j] = True
+        uf[j] = u
+        vf[j] = v
+        ds[j] = dist
+        sf[j] = math.floor(lam / dist * RADIUS_STEPS)
+
+
 @numba.njit(cache=True, inline="always")
-def _splat(zb, u, v, dist, lab, s0, s1, span, offsets, falloff, core, width, height):
-    """One point's disc into the z-buffer: offsets ``s0:s1`` of the disc table around (u, v)."""
+def _splat(zb, u, v, dist, lab, s0, s1, span, offsets, linear, falloff, rim, width, height):
+    """One point's disc into the z-buffer: offsets ``s0:s1`` of the disc table around (u, v).
+    Every write stores the minimum instead of testing first: the test's outcome is a coin toss
+    where discs overlap, and its mispredictions cost more than the stores (20 % of a render)."""
     if s1 - s0 == 1:  # a one-pixel disc (offset 0, falloff 1, core): most far points
         if u >= 0 and u < width and v >= 0 and v < height:
             idx = v * width + u
-            key = np.uint32((min(int(dist * falloff[s0] * 1000.0), MAX_DEPTH_MM) << 8) |
-                            (lab if core[s0] else INVALID))
-            if key < zb[idx]:
-                zb[idx] = key
+            key = np.uint32(min(int(dist * falloff[s0] * 1000.0), MAX_DEPTH_MM) << 8) | \
+                (lab | rim[s0])
+            zb[idx] = min(key, zb[idx])
         return
     if u >= span and u < width - span and v >= span and v < height - span:
         base = v * width + u  # the whole disc is inside: no test per pixel
         for o in range(s0, s1):
-            idx = base + offsets[o, 1] * width + offsets[o, 0]
-            key = np.uint32((min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) |
-                            (lab if core[o] else INVALID))
-            if key < zb[idx]:
-                zb[idx] = key
+            idx = base + linear[o]
+            key = np.uint32(min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) | \
+                (lab | rim[o])
+            zb[idx] = min(key, zb[idx])
         return
     for o in range(s0, s1):
         uu = u + offsets[o, 0]
         vv = v + offsets[o, 1]
         if uu >= 0 and uu < width and vv >= 0 and vv < height:
             idx = vv * width + uu
-            key = np.uint32((min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) |
-                            (lab if core[o] else INVALID))
-            if key < zb[idx]:
-                zb[idx] = key
+            key = np.uint32(min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) | \
+                (lab | rim[o])
+            zb[idx] = min(key, zb[idx])
 
 
-@numba.njit(cache=True, parallel=True, nogil=True)
-def _render_zbufs(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted, bounds,
-                  splat_lambda, lod_radius, radius_max, near, far, offsets, start, falloff, core,
-                  width, height, n_threads, model, limit):
-    """One z-buffer per thread (chunks dealt round-robin), not yet merged."""
-    n = xyz.shape[0]
+@numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def _render_zbufs(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted,
+                  bounds, splat_lambda, lod_radius, radius_max, near, far, offsets, linear, start,
+                  falloff, rim, width, height, n_threads, model, limit):
+    """One z-buffer per thread (chunks dealt round-robin), not yet merged. Each visible chunk
+    in two passes: its drawn points projected into scratch rows (vectorised), then their
+    discs written."""
+    n = coords.shape[1]
     n_chunks = chunk_center.shape[0]
     zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
-    fx, fy, cx, cy = intr[0], intr[1], intr[2], intr[3]
-    k1, k2, p1, p2, k3 = dist_c[0], dist_c[1], dist_c[2], dist_c[3], dist_c[4]
-    k4, k5, k6 = dist_c[5], dist_c[6], dist_c[7]
     fisheye = model == EQUIDISTANT
+    rational = model == RATIONAL
     span_max = int(math.floor(radius_max))
-    xmin, xmax, ymin, ymax = bounds[0], bounds[1], bounds[2], bounds[3]
     steps_max = int(math.floor(radius_max * RADIUS_STEPS))
     for th in numba.prange(n_threads):
         zb = zbufs[th]
         zb[:] = EMPTY_KEY
+        ok = np.empty(CHUNK, dtype=np.bool_)
+        uf = np.empty(CHUNK, dtype=np.float64)
+        vf = np.empty(CHUNK, dtype=np.float64)
+        sf = np.empty(CHUNK, dtype=np.float64)
+        ds = np.empty(CHUNK, dtype=np.float64)
         for ci in range(th, n_chunks, n_threads):
             if fisheye:
                 if not _chunk_visible_fisheye(chunk_center[ci], chunk_radius[ci], r, t, near,
@@ -134,44 +211,20 @@ def _render_zbufs(xyz, label, chunk_center, chunk_radius, r, t, intr, dist_c, di
                                   lod_radius)
             lam = splat_lambda * math.sqrt(np.float64(stride))
             first = ci * CHUNK
-            for i in range(first, first + drawn_count(stride, min(n - first, CHUNK))):
-                x = np.float64(xyz[i, 0])
-                y = np.float64(xyz[i, 1])
-                z = np.float64(xyz[i, 2])
-                xc = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
-                yc = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
-                zc = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
-                dist = math.sqrt(xc * xc + yc * yc + zc * zc)
-                if fisheye:  # ranges and the ray's angle, as in reference.project_points
-                    if not (dist > near and dist < far):
-                        continue
-                    # k1..k4 of the equidistant model are the first four coefficients
-                    xd, yd, theta = project_equidistant(xc, yc, zc, k1, k2, p1, p2)
-                    if not theta <= limit:
-                        continue
-                else:
-                    if not (zc > near and dist < far):
-                        continue
-                    xn = xc / zc
-                    yn = yc / zc
-                    if not (xn >= xmin and xn <= xmax and yn >= ymin and yn <= ymax):
-                        continue
-                    if model == RATIONAL:
-                        if not xn * xn + yn * yn <= limit:
-                            continue
-                        xd, yd = _distort_rational(xn, yn, k1, k2, p1, p2, k3, k4, k5, k6)
-                    elif distorted:
-                        xd, yd = _distort(xn, yn, k1, k2, p1, p2, k3)
-                    else:
-                        xd, yd = xn, yn
-                u = int(math.floor(fx * xd + cx + 0.5))
-                v = int(math.floor(fy * yd + cy + 0.5))
-                if fisheye and not (-span_max <= u < width + span_max and
-                                    -span_max <= v < height + span_max):
+            m = drawn_count(stride, min(n - first, CHUNK))
+            if fisheye:
+                _project_fisheye(coords, first, m, r, t, intr, dist_c, lam, limit, near, far,
+                                 span_max, width, height, ok, uf, vf, sf, ds)
+            else:
+                _project_pinhole(coords, first, m, r, t, intr, dist_c, distorted, rational,
+                                 bounds, lam, limit, near, far, ok, uf, vf, sf, ds)
+            for j in range(m):
+                if not ok[j]:
                     continue
-                step = min(int(math.floor(lam / dist * RADIUS_STEPS)), steps_max)
-                _splat(zb, u, v, dist, label[i], start[step], start[step + 1],
-                       step // RADIUS_STEPS, offsets, falloff, core, width, height)
+                step = min(int(sf[j]), steps_max)
+                _splat(zb, int(uf[j]), int(vf[j]), ds[j], np.uint32(label[first + j]),
+                       start[step], start[step + 1], step // RADIUS_STEPS, offsets, linear,
+                       falloff, rim, width, height)
     return zbufs
 
 
@@ -206,11 +259,11 @@ def _merged_labels(zbufs):
 def _zbufs(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
     threads = n_threads or numba.get_num_threads()
     return _render_zbufs(
-        pmap.xyz, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
+        pmap.coords, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
         view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
         view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far,
-        view.disc_offsets, view.disc_start, view.disc_falloff, view.disc_core, view.width,
-        view.height, threads, view.model, view.limit)
+        view.disc_offsets, view.disc_linear, view.disc_start, view.disc_falloff, view.disc_rim,
+        view.width, view.height, threads, view.model, view.limit)
 
 
 def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:

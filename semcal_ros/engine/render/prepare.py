@@ -6,6 +6,8 @@ bounding boxes, so the fast renderer can skip whole chunks outside the view and 
 with good locality. Inside a chunk the points are stored in bit-reversed Morton order: the first
 n / k of them are every k-th point along the curve (exactly so for k a power of two), so the level
 of detail reads a thinned chunk as one contiguous run instead of a strided gather (render/lod.py).
+Coordinates are stored as three rows (x, y and z each contiguous, ``coords``), so the renderer's
+projection pass runs four points per instruction; ``xyz`` is the (N, 3) view of the same memory.
 """
 
 from __future__ import annotations
@@ -38,13 +40,18 @@ BIT_REVERSED = _bit_reversed(CHUNK_BITS)
 @dataclass(frozen=True)
 class PreparedMap:
     origin: np.ndarray  # (3,) float64, added back to get map coordinates
-    xyz: np.ndarray  # (N, 3) float32, local coordinates, Morton order
+    coords: np.ndarray  # (3, N) float32, local coordinates (x, y, z rows), Morton order
     label: np.ndarray  # (N,) uint8 aligned classes (no INVALID)
     chunk_center: np.ndarray  # (C, 3) float64 bounding-sphere centres
     chunk_radius: np.ndarray  # (C,) float64 bounding-sphere radii
 
     def __len__(self) -> int:
         return len(self.label)
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """(N, 3) float32 local coordinates: a view of ``coords``, no copy."""
+        return self.coords.T
 
     @cached_property
     def spacing(self) -> float:
@@ -121,7 +128,7 @@ def _with_chunks(origin: np.ndarray, xyz: np.ndarray, label: np.ndarray) -> Prep
     lo, hi = blocks.min(axis=1), blocks.max(axis=1)
     center = 0.5 * (lo + hi)
     radius = 0.5 * np.linalg.norm(hi - lo, axis=1)
-    return PreparedMap(np.asarray(origin, np.float64), xyz,
+    return PreparedMap(np.asarray(origin, np.float64), np.ascontiguousarray(xyz.T),
                        np.ascontiguousarray(label, dtype=np.uint8), center, radius)
 
 

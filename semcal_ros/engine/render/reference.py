@@ -90,12 +90,12 @@ def render_keys(pmap: PreparedMap, view: View) -> np.ndarray:
         sel = step == s
         us, vs, ds, ls = u[sel], v[sel], dist[sel], lab[sel]
         lo, hi = view.disc_start[s], view.disc_start[s + 1]
-        for (du, dv), falloff, core in zip(view.disc_offsets[lo:hi], view.disc_falloff[lo:hi],
-                                           view.disc_core[lo:hi]):
+        for (du, dv), falloff, rim in zip(view.disc_offsets[lo:hi], view.disc_falloff[lo:hi],
+                                          view.disc_rim[lo:hi].astype(np.int64)):
             uu, vv = us + du, vs + dv
             inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
             depth_mm = np.minimum((ds[inside] * falloff * 1000.0).astype(np.int64), MAX_DEPTH_MM)
-            key = ((depth_mm << 8) | (ls[inside] if core else INVALID)).astype(np.uint32)
+            key = ((depth_mm << 8) | ls[inside] | rim).astype(np.uint32)  # rim: label INVALID
             np.minimum.at(zbuf, vv[inside] * w + uu[inside], key)
     return zbuf.reshape(h, w)
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from semcal_ros.engine.camera import MODEL_ID, CameraModel
 from semcal_ros.engine.config import check_finite, check_rule
+from semcal_ros.engine.labels import INVALID
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render.prepare import PreparedMap
 
@@ -71,7 +72,9 @@ class View:
     disc_offsets: np.ndarray  # (K, 2) int32 du, dv of all discs, concatenated
     disc_start: np.ndarray  # (S + 2,) int32: disc s = offsets[start[s]:start[s+1]]
     disc_falloff: np.ndarray  # (K,) float64: 1 + depth_falloff * (offset / radius)^2
-    disc_core: np.ndarray  # (K,) uint8: 1 where the offset carries the label, 0 depth only
+    disc_rim: np.ndarray  # (K,) uint32: 0 where the offset carries the label, 0xFF (INVALID) on
+    #                       the rim (depth only): a key's label byte is ``label | rim``
+    disc_linear: np.ndarray  # (K,) int64: dv * width + du, the offset in the flat z-buffer
     lod_radius: float = 0.0  # px: chunks whose discs are smaller are thinned (0: all points)
     distorted: bool = True  # False when all distortion coefficients are zero (skips the polynomial)
     model: int = 0  # camera.MODEL_ID: 0 plumb_bob, 1 rational_polynomial, 2 equidistant
@@ -91,7 +94,8 @@ def disc_table(radius_max: float, depth_falloff: float,
     Only the disc's core (radius ``core_fraction * r``) carries the label; the rim occludes what
     lies behind but renders as "no label". At a silhouette (a pole before a wall, a roof against
     the sky) the rim is where a disc overshoots the true outline, so it is masked instead of
-    counted as the wrong class.
+    counted as the wrong class. Returned as offsets, start, falloff and rim (0 in the core,
+    INVALID on the rim: OR-ed into the label, so the hot loop has no branch for it).
     """
     steps = int(np.floor(radius_max * RADIUS_STEPS))
     offsets, falloff, core, start = [], [], [], [0]
@@ -108,10 +112,24 @@ def disc_table(radius_max: float, depth_falloff: float,
     return (np.ascontiguousarray(np.concatenate(offsets), dtype=np.int32),
             np.asarray(start, dtype=np.int32),
             np.ascontiguousarray(np.concatenate(falloff), dtype=np.float64),
-            np.ascontiguousarray(np.concatenate(core), dtype=np.uint8))
+            np.where(np.concatenate(core), 0, INVALID).astype(np.uint32))
 
 
 _DISC_CACHE: dict[tuple[float, float, float], tuple[np.ndarray, ...]] = {}
+_LINEAR_CACHE: dict[tuple[float, float, float, int], np.ndarray] = {}
+
+
+def _disc(radius_max: float, depth_falloff: float, core_fraction: float, width: int
+          ) -> tuple[np.ndarray, ...]:
+    """The disc table and its offsets in a z-buffer ``width`` wide, made once per setting."""
+    key = (float(radius_max), float(depth_falloff), float(core_fraction))
+    if key not in _DISC_CACHE:
+        _DISC_CACHE[key] = disc_table(*key)
+    offsets, start, falloff, rim = _DISC_CACHE[key]
+    if (*key, width) not in _LINEAR_CACHE:
+        _LINEAR_CACHE[(*key, width)] = np.ascontiguousarray(
+            offsets[:, 1].astype(np.int64) * width + offsets[:, 0])
+    return offsets, start, falloff, rim, _LINEAR_CACHE[(*key, width)]
 
 
 def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda: float,
@@ -124,10 +142,8 @@ def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda:
     them once per stage."""
     r, t = pose.world_to_camera()
     t_local = t + r @ np.asarray(origin, float)
-    key = (float(radius_max), float(depth_falloff), float(core_fraction))
-    if key not in _DISC_CACHE:
-        _DISC_CACHE[key] = disc_table(*key)
-    offsets, start, falloff, core = _DISC_CACHE[key]
+    offsets, start, falloff, rim, linear = _disc(radius_max, depth_falloff, core_fraction,
+                                                 camera.width)
     if bounds is None:
         bounds = np.asarray(camera.normalized_bounds(margin_px=radius_max))
     return View(
@@ -138,7 +154,7 @@ def make_view(camera: CameraModel, pose: Pose, origin: np.ndarray, splat_lambda:
         bounds=np.asarray(bounds, dtype=np.float64),
         splat_lambda=float(splat_lambda), radius_max=float(radius_max),
         near=float(near), far=float(far), disc_offsets=offsets, disc_start=start,
-        disc_falloff=falloff, disc_core=core, lod_radius=float(lod_radius),
+        disc_falloff=falloff, disc_rim=rim, disc_linear=linear, lod_radius=float(lod_radius),
         distorted=bool(np.any(camera.d != 0.0)), model=MODEL_ID[camera.model],
         limit=float(camera.render_limit(radius_max) if limit is None else limit),
     )
