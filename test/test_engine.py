@@ -160,6 +160,34 @@ def test_yaw_grid_finds_an_unknown_yaw(world, target):
     yaw_errors = [abs((c.body_rpy_deg()[2] - GROUND_TRUTH.body_rpy_deg()[2] + 180) % 360 - 180)
                   for c in candidates]
     assert min(yaw_errors) <= 5.0  # a grid cell within the +-5 deg search bound of the truth
+    # after the short descent the right heading ranks first
+    assert yaw_errors[0] <= 5.0, yaw_errors
+
+
+def test_the_yaw_search_stays_within_the_prior_and_scores_coverage(problem):
+    """Confined: a pose beyond 1.5 x the bounds of the initial guess (x, y, z, pitch) costs the
+    degenerate loss without a render, one inside costs the loss plus the coverage term; a
+    descent from the edge of the box ends inside it."""
+    from semcal_ros.engine.search import EvaluationCounter, Search
+
+    search = Search(problem, EvaluationCounter(None, None))
+    search.confine(INITIAL, 1.5)
+    search.coverage_weight = 0.2
+    v = INITIAL.vector()
+    out = v.copy()
+    out[0] += 2.5 * 1.5 + 0.01
+    assert search.score(Pose.from_vector(out), 0) == problem.params.loss.degenerate_loss
+    tilted = v.copy()
+    tilted[4] += np.radians(5.0 * 1.5 + 0.1)
+    assert search.outside(tilted) and not search.outside(v)
+    e = problem.evaluate(GROUND_TRUTH, 0)
+    assert search.score(GROUND_TRUTH, 0) == pytest.approx(e.loss + 0.2 * (1 - e.coverage))
+    edge = v.copy()
+    edge[1] += 2.5 * 1.4
+    end, _ = search.nelder_mead(0, edge, 0, 60)
+    assert not search.outside(end)
+    search.confine(INITIAL, 0.0)  # 0: unconfined, the paper's search
+    assert not search.outside(out)
 
 
 def test_free_roll_adds_a_parameter(problem, world, target):

@@ -150,3 +150,50 @@ def test_named_noise_models_and_a_clear_error_for_unknown_ones():
     assert (noisy_labels(labels, "network", 2) != labels).any()
     with pytest.raises(ValueError, match="label noise must be legacy or one of network"):
         noisy_labels(labels, "gaussian")
+
+
+def test_a_start_beyond_the_measured_basin_is_named_and_never_good(demo_scene):
+    """The synthetic junction, judged at its true pose: from a start inside the measured basin
+    the verdict is good; from one 4 m / 31 deg away it is at most inconclusive and the reason
+    names the start and the basin's bounds; with the yaw search the yaw no longer counts."""
+    from dataclasses import replace
+
+    cloud, labels, cam, truth = _scene(demo_scene)
+    problem = Problem(cloud, labels, cam, truth.translation)
+    near = Pose.from_body_rpy_deg(truth.translation + [1.0, -2.0, 0.5],
+                                  truth.body_rpy_deg() + [0.0, 3.0, -4.0])
+    far = Pose.from_body_rpy_deg(truth.translation + [4.0, 1.0, 0.0],
+                                 truth.body_rpy_deg() + [0.0, 2.0, 31.0])
+    q = assess(problem, truth, start=near)
+    assert q.verdict == "good", q.summary()
+    assert not q.start_outside_basin and q.start_offset[0] == pytest.approx(2.0, abs=1e-6)
+    q = assess(problem, truth, start=far)
+    assert q.verdict == "inconclusive" and q.start_outside_basin, q.summary()
+    assert "the start was 4.0 m / 31 deg yaw / 2.0 deg pitch from the result" in q.reason
+    assert "beyond the measured basin (2.5 m per axis, 5 deg yaw, 5 deg pitch)" in q.reason
+    d = q.to_dict()
+    assert d["start_outside_basin"] is True
+    assert d["start_offset"]["yaw_deg"] == pytest.approx(31.0, abs=1e-3)
+    # heading unknown: the yaw search covers any yaw, so a start off only in yaw is inside
+    yaw_only = Pose.from_body_rpy_deg(truth.translation + [1.0, 0.0, 0.0],
+                                      truth.body_rpy_deg() + [0.0, 0.0, -150.0])
+    searched = replace(problem.params, search=replace(problem.params.search, yaw_search=True))
+    problem.params = searched
+    assert assess(problem, truth, start=yaw_only).verdict == "good"
+    q = assess(problem, truth, start=far)  # still 4 m off in x
+    assert q.start_outside_basin and "any yaw (yaw search)" in q.reason
+
+
+def test_a_failed_verdict_stays_failed_and_also_names_the_start(scene_factory):
+    junction = scene_factory("junction", 3, "ideal", **TINY)
+    cloud, labels, cam, truth = _scene(junction)
+    problem = Problem(cloud, labels, cam, truth.translation)
+    off = Pose.from_body_rpy_deg(truth.translation + [14.0, 14.0, 0.0], truth.body_rpy_deg())
+    q = assess(problem, off, start=truth)
+    assert q.verdict == "failed" and q.start_outside_basin, q.summary()
+    assert "check the start" in q.reason and "14.0 m" in q.reason
+
+
+def test_basin_bounds_are_checked_by_name():
+    with pytest.raises(ValueError, match="quality.basin_yaw_deg"):
+        QualityParams(basin_yaw_deg=0.0)

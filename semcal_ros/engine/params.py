@@ -49,7 +49,12 @@ class SearchParams:
     free_roll: bool = False
     yaw_search: bool = False  # coarse grid over the full circle first (yaw not known at all)
     yaw_search_step_deg: float = 10.0
-    yaw_search_keep: int = 3
+    yaw_search_probe: int = 16  # best-scored headings that get a short coarse descent
+    yaw_search_probe_evaluations: int = 100  # length of that descent
+    yaw_search_keep: int = 3  # lowest after the descent: starts of the search
+    yaw_search_confine: float = 1.5  # with the yaw search, x/y/z/pitch stay within this many
+    # bounds of the initial guess (0: unconfined)
+    yaw_search_coverage_weight: float = 0.2  # with the yaw search, + this x uncovered share
 
     def __post_init__(self) -> None:
         check_finite(self)
@@ -69,6 +74,14 @@ class SearchParams:
         check_rule("search.yaw_search_step_deg", self.yaw_search_step_deg,
                0 < self.yaw_search_step_deg <= 90, "in (0, 90]")
         check_rule("search.yaw_search_keep", self.yaw_search_keep, self.yaw_search_keep >= 1, ">= 1")
+        check_rule("search.yaw_search_probe", self.yaw_search_probe,
+                   self.yaw_search_probe >= self.yaw_search_keep, ">= yaw_search_keep")
+        check_rule("search.yaw_search_probe_evaluations", self.yaw_search_probe_evaluations,
+                   self.yaw_search_probe_evaluations >= 1, ">= 1")
+        check_rule("search.yaw_search_coverage_weight", self.yaw_search_coverage_weight,
+                   self.yaw_search_coverage_weight >= 0, ">= 0")
+        check_rule("search.yaw_search_confine", self.yaw_search_confine,
+                   self.yaw_search_confine == 0 or self.yaw_search_confine >= 1, "0 or >= 1")
 
 
 @dataclass(frozen=True)

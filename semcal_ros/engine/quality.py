@@ -13,12 +13,16 @@ public loss at a pose, so ``semcal calibrate``, the action and the drift watch s
   move from the result, alone, before the loss rises by ``rise`` (relative) + ``rise_abs``; the larger
   of the two directions, capped at the search bound (a capped axis is unconstrained);
 * the verification runs: a distinct basin whose refined loss is as low as the result's means the
-  data cannot decide between two places.
+  data cannot decide between two places;
+* the start: a result farther from its initial guess than the basin measured on the scene
+  catalogue (``basin_*``; yaw not counted when the yaw search ran) came from a start nobody
+  measured to converge, so it is not called good (docs/engine.md "How good must the start be").
 
 The verdict: ``failed`` when agreement is below ``min_agreement`` or runs disagree; else
 ``inconclusive`` when the coverage is below ``min_coverage`` or an axis's uncertainty exceeds
-``max_translation_m`` / ``max_rotation_deg`` (the reason names the axis); else ``good``. The
-thresholds and how they were chosen on scenes are in docs/quality.md.
+``max_translation_m`` / ``max_rotation_deg`` (the reason names the axis); else ``good``. A start
+beyond the measured basin makes a good verdict inconclusive and is named in the reason of every
+verdict. The thresholds and how they were chosen on scenes are in docs/quality.md.
 """
 
 from __future__ import annotations
@@ -71,6 +75,12 @@ class QualityParams:
     disagree_translation_m: float = 0.3  # a rival basin this far away with a loss as low: failed
     disagree_rotation_deg: float = 0.3
     rival_margin: float = 0.02  # "as low": refined loss <= result's * (1 + margin)
+    # the start's basin measured on the four catalogue layouts (docs/engine.md "How good must the
+    # start be"): a result farther from its start than this (per map axis; body pitch; body yaw,
+    # unless the yaw search ran) came from a start no measurement covers: at most inconclusive
+    basin_translation_m: float = 2.5
+    basin_pitch_deg: float = 5.0
+    basin_yaw_deg: float = 5.0
 
     def __post_init__(self) -> None:
         for name in ("rise", "rise_abs", "min_agreement", "min_coverage", "rival_margin"):
@@ -78,7 +88,8 @@ class QualityParams:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"quality.{name} must be a finite number >= 0, got {value}")
         for name in ("step_m", "step_deg", "max_translation_m", "max_rotation_deg",
-                     "disagree_translation_m", "disagree_rotation_deg"):
+                     "disagree_translation_m", "disagree_rotation_deg", "basin_translation_m",
+                     "basin_pitch_deg", "basin_yaw_deg"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"quality.{name} must be a finite number > 0, got {value}")
@@ -158,11 +169,36 @@ def axis_uncertainty(problem: ProbedProblem, pose: Pose, params: QualityParams,
     return out, spent
 
 
+def start_offset(start: Pose, result: Pose) -> tuple[float, float, float]:
+    """How far the result lies from its start, as the basin was measured: the largest map-axis
+    translation difference (m; starts were drawn per axis), the body pitch and the body yaw
+    difference (deg, yaw wrapped to [0, 180])."""
+    dt = float(np.max(np.abs(result.translation - start.translation)))
+    d = result.body_rpy_deg() - start.body_rpy_deg()
+    return dt, float(abs(d[1])), float(abs((d[2] + 180.0) % 360.0 - 180.0))
+
+
+def beyond_basin(offset: tuple[float, float, float], params: QualityParams, yaw_searched: bool
+                 ) -> str:
+    """The reason text when ``offset`` (:func:`start_offset`) lies beyond the measured basin, or
+    "" inside it. The yaw is not judged when the yaw search covered the full circle."""
+    dt, dp, dy = offset
+    over = dt > params.basin_translation_m or dp > params.basin_pitch_deg or \
+        (not yaw_searched and dy > params.basin_yaw_deg)
+    if not over:
+        return ""
+    yaw_bound = "any yaw (yaw search)" if yaw_searched else f"{params.basin_yaw_deg:g} deg yaw"
+    return (f"the start was {dt:.1f} m / {dy:.0f} deg yaw / {dp:.1f} deg pitch from the result, "
+            f"beyond the measured basin ({params.basin_translation_m:g} m per axis, {yaw_bound}, "
+            f"{params.basin_pitch_deg:g} deg pitch): check the start")
+
+
 def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
            params: QualityParams | None = None,
-           on_probe: Callable[[], None] | None = None) -> QualityReport:
+           on_probe: Callable[[], None] | None = None, start: Pose | None = None) -> QualityReport:
     """The quality report of ``pose`` on ``problem`` (see the module docstring). ``runs`` are the
-    verification runs of the calibration (empty for a pose from elsewhere, e.g. a drift check)."""
+    verification runs of the calibration (empty for a pose from elsewhere, e.g. a drift check);
+    ``start`` its initial guess, judged against the measured basin (None: not judged)."""
     qp = params or problem.params.quality
     sp = problem.params.search
     rendered = problem.render(pose)  # one full-resolution render serves agreement and loss
@@ -204,6 +240,12 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         verdict, reason = "inconclusive", "unconstrained: " + ", ".join(parts)
     else:
         verdict, reason = "good", "every axis pinned down, labels agree"
+    offset = start_offset(start, pose) if start is not None else None
+    outside = beyond_basin(offset, qp, sp.yaw_search) if offset is not None else ""
+    if outside:
+        # a good verdict from an unmeasured start is not trusted; any verdict names the start
+        verdict = "inconclusive" if verdict == "good" else verdict
+        reason = outside if reason.startswith("every axis") else f"{reason}; {outside}"
     return QualityReport(
         verdict=verdict, reason=reason, agreement=agreement, agreement_per_class=per_class,
         coverage=coverage,
@@ -211,8 +253,9 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         uncertainty_rpy_deg=(float(unc[3]), float(unc[4]), float(unc[5])), unconstrained=loose,
         spread_translation_m=float(np.sqrt(np.mean(np.square(dt)))) if dt else 0.0,
         spread_rotation_deg=float(np.sqrt(np.mean(np.square(dr)))) if dr else 0.0,
-        evaluations=spent + 1, roll_free=sp.free_roll)
+        evaluations=spent + 1, roll_free=sp.free_roll, start_offset=offset,
+        start_outside_basin=bool(outside))
 
 
 __all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
-           "label_agreement"]
+           "beyond_basin", "label_agreement", "start_offset"]

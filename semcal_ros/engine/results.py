@@ -46,6 +46,10 @@ class QualityReport:
     spread_rotation_deg: float = 0.0
     evaluations: int = 0  # loss evaluations the report cost
     roll_free: bool = False  # roll searched (else held fixed, and its uncertainty not judged)
+    # the result's distance from its start (m per map axis, pitch deg, yaw deg; None: no start
+    # given) and whether that lies beyond the measured basin (quality.basin_*)
+    start_offset: tuple[float, float, float] | None = None
+    start_outside_basin: bool = False
 
     def to_dict(self) -> dict:
         """The ``quality:`` group of a result YAML."""
@@ -62,6 +66,11 @@ class QualityReport:
             "unconstrained": list(self.unconstrained),
             "spread_translation_m": round(float(self.spread_translation_m), 4),
             "spread_rotation_deg": round(float(self.spread_rotation_deg), 4),
+            **({"start_offset": {"translation_m": round(self.start_offset[0], 3),
+                                 "pitch_deg": round(self.start_offset[1], 3),
+                                 "yaw_deg": round(self.start_offset[2], 3)},
+                "start_outside_basin": bool(self.start_outside_basin)}
+               if self.start_offset is not None else {}),
         }
 
     def summary(self) -> str:
