@@ -19,7 +19,8 @@
 #   paper           the paper's plain method (semcal_tools.bench.paper_params, one schedule per
 #                   start, labels only): real_protocol_f0.py paper
 # Measuring a fixed commit while others edit the tree: PYTHONPATH=<git archive of it> (the venv's
-# editable install comes after PYTHONPATH).
+# editable install comes after PYTHONPATH; `python -m` from the checkout would put the working tree
+# first, so the pieces run .venv/bin/semcal and a script path instead).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:?usage: real_protocol_f0.sh OUT SCENE [SCENE ...]}
@@ -58,7 +59,7 @@ for scene in "$@"; do
                 cmd=($PY benchmarks/real_protocol_f0.py paper "$dir" --seed "$seed" --runs "$RUNS"
                      --json "$json.part")
             else
-                cmd=($PY -m semcal_ros.cli evaluate "$dir" --loss "$loss" --runs "$RUNS"
+                cmd=(.venv/bin/semcal evaluate "$dir" --loss "$loss" --runs "$RUNS"
                      --keep "$RUNS" --seed "$seed" --config "$scene/calibrator.yaml"
                      --json "$json.part" --quiet)
             fi
