@@ -16,8 +16,12 @@ $(STAMP): requirements.txt requirements-build.txt setup.py .ci/setup-env.sh \
 demo: $(STAMP)
 	$(VENV)/bin/semcal demo
 
+# two worker processes: the ROS tests wait on processes and DDS much of the time, and each test's
+# ROS graph claims a domain id of its own (test/ros_helpers.py), so two run side by side safely
+# (idle: 373 s instead of 563 s). TEST_WORKERS=0 runs in one process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) test
 
 bench: $(STAMP)
 	$(VENV)/bin/semcal bench

@@ -264,8 +264,8 @@ def test_scene_pose_noise_is_refined(scene_factory, record_property):
         t_raw, r_raw = accuracy.pose_errors(poses, truth)
         figures[name] = (t.max(), r.max(), t_raw.max(), r_raw.max())
         record_property(f"{name} max error cm/deg (common motion removed; raw)",
-                        [round(t.max() * 100, 2), round(r.max(), 3),
-                         round(t_raw.max() * 100, 2), round(r_raw.max(), 3)])
+                        [round(float(t.max()) * 100, 2), round(float(r.max()), 3),
+                         round(float(t_raw.max()) * 100, 2), round(float(r_raw.max()), 3)])
     print("scene pose errors, max over scans (m, deg, common motion removed; raw m, deg):",
           figures)
     assert figures["given"][0] > 0.1  # the test is not trivially passed by the input poses
@@ -375,7 +375,7 @@ def test_kitti_refined_map_alignment_recovers_from_pose_noise(kitti_scans, recor
                "perturbed 0.3 m / 1 deg, no ICP": _alignment(above, noisy),
                "perturbed poses, ICP": _alignment(above, result.refined_poses)}
     for name, value in figures.items():
-        record_property(name, round(value, 4))
+        record_property(name, round(float(value), 4))
     print("KITTI 00 scans 0-5, median NN distance of above-ground points:",
           {k: f"{v * 100:.1f} cm" for k, v in figures.items()})
     assert figures["perturbed 0.3 m / 1 deg, no ICP"] > 1.3 * figures["true poses, no ICP"]
