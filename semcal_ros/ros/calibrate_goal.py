@@ -15,6 +15,7 @@ import numpy as np
 from semcal_ros.engine import validation
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.config import apply_flat
+from semcal_ros.engine.loss import LOSS_KINDS
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.errors import InputError
@@ -22,7 +23,7 @@ from semcal_ros.ros.held_map import HeldMap
 
 ROLL_CHOICES = {0: None, 1: False, 2: True}  # ROLL_DEFAULT, ROLL_FIXED, ROLL_FREE
 YAW_SEARCH_CHOICES = {0: None, 1: False, 2: True}
-LOSS_CHOICES = ("", "l2", "huber")
+LOSS_CHOICES = ("", *LOSS_KINDS)  # "" = the node's engine.loss.kind
 
 
 @dataclass
@@ -73,7 +74,8 @@ def goal_problems(goal: Any, inputs: Inputs) -> list[str]:
     if goal.yaw_search not in YAW_SEARCH_CHOICES:
         problems.append(f"yaw_search must be 0-2, got {goal.yaw_search}")
     if goal.loss not in LOSS_CHOICES:
-        problems.append(f"loss must be 'l2', 'huber' or '' (node default), got '{goal.loss}'")
+        kinds = ", ".join(f"'{k}'" for k in LOSS_KINDS)
+        problems.append(f"loss must be {kinds} or '' (node default), got '{goal.loss}'")
     problems += input_problems(goal.camera_frame_id, inputs)
     return problems
 
