@@ -18,10 +18,11 @@ demo: $(STAMP)
 
 # two worker processes: the ROS tests wait on processes and DDS much of the time, and each test's
 # ROS graph claims a domain id of its own (test/ros_helpers.py), so two run side by side safely
-# (idle: 373 s instead of 563 s). TEST_WORKERS=0 runs in one process.
+# (idle: 373 s instead of 563 s). A file's tests stay on one worker, in order: some share a
+# module-scoped node and check what the tests before them fed it. TEST_WORKERS=0: one process.
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS) test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile test
 
 bench: $(STAMP)
 	$(VENV)/bin/semcal bench
