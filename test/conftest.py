@@ -21,6 +21,13 @@ from typing import Callable  # noqa: E402
 import pytest  # noqa: E402
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """``SEMCAL_TEST_ORDER=reverse`` runs the collected tests in reverse order: every test must
+    build the state it checks, whatever ran before it in its file (module fixtures included)."""
+    if os.environ.get("SEMCAL_TEST_ORDER", "") == "reverse":
+        items.reverse()
+
+
 @pytest.fixture(scope="session")
 def scene_factory(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Path]:
     from semcal_tools.scenes import SIZES, generate_scene

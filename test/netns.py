@@ -42,6 +42,8 @@ if str(REPO) not in sys.path:  # run as a script from anywhere
 from semcal_tools.launch import BIN, NodeProcess, ros_args, ros_environment  # noqa: E402
 from semcal_tools.live_demo import ODOM_TOPIC, SCAN_TOPIC, scan_count  # noqa: E402
 
+from ros_helpers import reliable_overrides  # noqa: E402
+
 SUBNET = "10.77.0"
 PREFIX = 24
 #: Socket buffers of the link transport: the map (about 16 MB for the demo scene) is sent as a
@@ -330,8 +332,12 @@ def start_pipeline(hosts: Hosts, scene: Path, report: Path, goals: int = 1, refu
     Returns (client, lidar player); the players wait for their subscribers before playing."""
     vehicle, rsu = hosts.graph("vehicle"), hosts.graph("rsu")
     bag = scene / "bag"
+    # reliable scans and poses (QoS override parameters): the client waits for a map of every
+    # scan, and with both cores busy best effort dropped one now and then (the map never
+    # completed); the players wait for the acknowledgements before they exit
     vehicle.start_node("map_builder", params={"mapping.icp": False, "publish_period": 1.0,
-                                              "queue_size": 100},
+                                              "queue_size": 100,
+                                              **reliable_overrides(SCAN_TOPIC, ODOM_TOPIC)},
                        remap={"scan": SCAN_TOPIC, "odom": ODOM_TOPIC})
     rsu.start_node("calibrator", params_file=REPO / "config" / "calibrator.yaml",
                    params=calibrator_params)
@@ -406,7 +412,8 @@ def roadside_client(args: argparse.Namespace) -> int:
 
 
 def probe(args: argparse.Namespace) -> int:
-    """List, for ``--seconds``, the nodes and ``/map`` publishers this process can see."""
+    """List, for ``--seconds`` (or until the ``--until`` nodes and a map are seen), the nodes
+    and ``/map`` publishers this process can see."""
     import rclpy
     from sensor_msgs.msg import PointCloud2
 
@@ -416,8 +423,13 @@ def probe(args: argparse.Namespace) -> int:
     node = rclpy.create_node("isolation_probe")
     maps: list[Any] = []
     node.create_subscription(PointCloud2, "/map", maps.append, qos.latched())
+    wanted = set(filter(None, args.until.split(",")))
+
+    def seen_enough() -> bool:  # --until: every named node and a map (never, without it)
+        return bool(wanted) and bool(maps) and wanted <= set(node.get_node_names())
+
     deadline = time.monotonic() + args.seconds
-    while time.monotonic() < deadline:
+    while time.monotonic() < deadline and not seen_enough():
         rclpy.spin_once(node, timeout_sec=0.1)
     seen = {"nodes": sorted(n for n in node.get_node_names() if n != "isolation_probe"),
             "map_publishers": node.count_publishers("/map"), "maps_received": len(maps)}
@@ -441,7 +453,10 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--out", required=True, help="JSON report")
     c.set_defaults(func=roadside_client)
     p = sub.add_parser("probe", help="which nodes and /map publishers are visible")
-    p.add_argument("--seconds", type=float, default=3.0)
+    p.add_argument("--seconds", type=float, default=3.0,
+                   help="how long to listen (with --until: at most)")
+    p.add_argument("--until", default="",
+                   help="comma-separated node names: stop once all are seen and a map came")
     p.add_argument("--out", required=True)
     p.set_defaults(func=probe)
     args = ap.parse_args(argv)

@@ -69,7 +69,7 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
         spin_until(executor, lambda: any("reference check" in m.message for m in drifts), 60,
                    "the monitor's reference check")
         n = len(drifts)
-        spin_until(executor, lambda: len(drifts) >= n + 2, 10 * PERIOD, "two more checks")
+        spin_until(executor, lambda: len(drifts) >= n + 2, 60, "two more checks")
         unchanged = drifts[n:]
         assert all(m.level == CalibrationDrift.OK for m in unchanged), \
             [m.message for m in unchanged]
@@ -97,7 +97,7 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
         showing["labels"] = labels["turned"]
         n = len(drifts)
         spin_until(executor, lambda: any(m.level != CalibrationDrift.OK for m in drifts[n:]),
-                   6 * PERIOD + 10, "the monitor to flag the moved camera")
+                   60, "the monitor to flag the moved camera")
         flagged = next(m for m in drifts[n:] if m.level != CalibrationDrift.OK)
         assert flagged.level in (CalibrationDrift.WARN, CalibrationDrift.ERROR), flagged.message
         assert 0.2 < flagged.drift_rotation_deg < 0.7, flagged.message
@@ -107,7 +107,7 @@ def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, dem
                    ("1", "2") and "drift_deg" in watcher.get("calibration_monitor"), 30,
                    "the drift in /diagnostics")
         assert float(watcher.get("calibration_monitor")["drift_deg"]) > 0.2
-        assert proc.running
+        assert proc.running()
         # latched: a late subscriber gets the last verdict
         late: list[Any] = []
         node.create_subscription(CalibrationDrift, "/calibration/drift", late.append,

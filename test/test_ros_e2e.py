@@ -18,7 +18,8 @@ from sensor_msgs.msg import PointCloud2  # noqa: E402
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 
-from ros_helpers import REPO, RosGraph, publish_until, spin_until  # noqa: E402
+from ros_helpers import (REPO, RosGraph, held_goal, publish_until,  # noqa: E402
+                         reliable_overrides, spin_until)
 
 pytestmark = pytest.mark.ros
 
@@ -315,7 +316,7 @@ def test_calibrator_feedback_cancel_and_a_second_goal(graph, listener, demo_scen
     client = CalibrateClient(listener.node)
     client.wait_for_server(30)
     initial = read_pose(demo_scene / "initial.yaml")
-    first = client.send(listener.executor, make_goal(initial, verification_starts=30))
+    first = client.send(listener.executor, held_goal(initial))  # runs until cancelled
     assert first.accepted
     # Feedback is an event stream: wait for several messages and check they carry progress.
     # How often they come is a figure of benchmarks/bench_action_latency.py, not of this test.
@@ -341,7 +342,7 @@ def test_calibrator_feedback_cancel_and_a_second_goal(graph, listener, demo_scen
     watcher.latest.pop("calibrator", None)  # a status sent from now on, not one from before
     spin_until(listener.executor, lambda: diag().get("state") == "idle", 60,
                "the engine to stop")
-    third = client.send(listener.executor, make_goal(initial))
+    third = client.send(listener.executor, held_goal(initial))
     assert third.accepted
     client.cancel(listener.executor, third)
     client.wait(listener.executor, third, timeout=60)
@@ -377,13 +378,12 @@ def test_live_pipeline_calibrates_the_demo_scene(graph, listener, demo_scene, tm
     from semcal_ros.ros.client import CalibrateClient, DiagnosticsWatcher, make_goal
 
     overlay_file = tmp_path / "overlay.png"
-    # Scans are a best-effort stream by default (a late sample is dropped, as from a sensor); under
-    # a loaded CI machine one can be lost, so this test asks for reliable delivery by the QoS
-    # override parameters a user would set for a replay that must lose nothing.
+    # Scans and poses are best-effort streams by default (a late sample is dropped, as from a
+    # sensor); under a loaded CI machine one can be lost, so this test asks for reliable delivery
+    # by the QoS override parameters a user would set for a replay that must lose nothing.
     builder = graph.start_node("map_builder", params={
         "mapping.icp": False, "publish_period": 1.0, "queue_size": 100,
-        "qos_overrides./lidar/points.subscription.reliability": "reliable",
-        "qos_overrides./lidar/points.subscription.depth": 100},
+        **reliable_overrides("/lidar/points", "/lidar/odom")},
         remap={"scan": "/lidar/points", "odom": "/lidar/odom"})
     cal = graph.start_node("calibrator", params_file=REPO / "config" / "calibrator.yaml",
                            params={"overlay_file": str(overlay_file)})
@@ -458,10 +458,15 @@ def test_map_builder_starts_over_when_time_jumps_back(graph, listener, tmp_path)
 
     bag = tmp_path / "bag"
     write_test_bag(bag, "mcap", scans=20, points=2000)
-    builder = graph.start_node("map_builder", params={"mapping.icp": False, "publish_period": 0.5,
-                                                      "mapping.remove_dynamic": False,
-                                                      "time_jump": 0.5},  # the bag lasts 1 s
-                               remap={"scan": "/test/points", "odom": "/test/odom"})
+    # Reliable scans and poses (the QoS override parameters of a replay that must lose nothing):
+    # best effort may drop a message under load, and a lost last pose leaves the last scan
+    # waiting for a pose newer than it for good. The player waits for the acknowledgements of
+    # reliable topics before it exits.
+    builder = graph.start_node("map_builder", params={
+        "mapping.icp": False, "publish_period": 0.5, "mapping.remove_dynamic": False,
+        "time_jump": 0.5,  # the bag lasts 1 s
+        **reliable_overrides("/test/points", "/test/odom")},
+        remap={"scan": "/test/points", "odom": "/test/odom"})
     watcher = DiagnosticsWatcher(listener.node)
     builder.wait_for_log("ready", 30)
 

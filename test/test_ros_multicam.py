@@ -1,6 +1,7 @@
 """One calibrator process serving two cameras of one junction (``semcal scene --cameras 2``) on
-one map, over DDS: goals for both cameras queue on the one engine thread, a second goal for a busy
-camera and a goal for an unknown camera are answered with the reason, both results are accurate
+one map, over DDS: goals for both cameras queue on the one engine thread (the first held running
+until the test cancels it), a second goal for a busy camera and a goal for an unknown camera are
+answered with the reason, both results are accurate
 and carry a verdict, and /tf_static's latest TFMessage holds both transforms."""
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 from semcal_ros.ros.scene_messages import camera_messages  # noqa: E402
 
-from ros_helpers import RosGraph, spin_until  # noqa: E402
+from ros_helpers import RosGraph, held_goal, spin_until  # noqa: E402
 from test_ros_calibrator import assert_empty_transform, assert_quality  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -67,20 +68,24 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
             return make_goal(read_pose(scene / cam["folder"] / "initial.yaml"),
                              camera_frame_id=frame)
 
-        # a by its frame id, b by its name: b waits for a on the one engine thread
-        first = client.send(executor, goal(cams[0], f"{a}_optical"))
+        # a by its frame id, b by its name: b waits for a on the one engine thread. a's first
+        # goal runs until it is cancelled here, so b is queued behind it however fast the
+        # machine is; a's real goal is sent once the engine has moved on to b.
+        holder = client.send(executor, held_goal(read_pose(scene / cams[0]["folder"] /
+                                                           "initial.yaml"),
+                                                 camera_frame_id=f"{a}_optical"))
         spin_until(executor, lambda: watcher.get(f"calibrator/{a}").get("state", "")
                    .startswith("running"), 30, f"{a}'s goal to run")
         second = client.send(executor, goal(cams[1], b))
-        assert first.accepted and second.accepted
+        assert holder.accepted and second.accepted
         spin_until(executor, lambda: second.feedback, 30, "feedback of the queued goal")
         assert second.feedback[0][1].stage == "queued", second.feedback[0][1]
 
         busy = client.call(executor, goal(cams[0], f"{a}_optical"), timeout=30)
         assert busy.status == "aborted" and not busy.result.success
-        first_id = bytes(first.goal_handle.goal_id.uuid).hex()[:8]
+        holder_id = bytes(holder.goal_handle.goal_id.uuid).hex()[:8]
         assert busy.result.message.startswith(
-            f"busy: goal {first_id} for camera '{a}' has been running for "), busy.result.message
+            f"busy: goal {holder_id} for camera '{a}' has been running for "), busy.result.message
         assert busy.result.message.endswith("(one calibration per camera at a time)")
         queued = client.call(executor, goal(cams[1], f"{b}_optical"), timeout=30)
         assert queued.status == "aborted" and f"for camera '{b}' is queued" in \
@@ -96,8 +101,17 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
             assert "\n" not in out.result.message
             assert_empty_transform(out.result)
 
+        client.cancel(executor, holder)
+        client.wait(executor, holder, timeout=60)
+        assert holder.status == "canceled", (holder.status, holder.result.message)
+        # a's job has ended once the engine thread took b's (one job at a time)
+        spin_until(executor, lambda: second.feedback[-1][1].stage != "queued", 60,
+                   f"{b}'s goal to leave the queue")
+        first = client.send(executor, goal(cams[0], f"{a}_optical"))
+        assert first.accepted
+
         results = {}
-        for cam, outcome in ((cams[0], first), (cams[1], second)):
+        for cam, outcome in ((cams[1], second), (cams[0], first)):
             client.wait(executor, outcome, timeout=120)
             assert outcome.status == "succeeded", outcome.result.message
             r = outcome.result
@@ -122,17 +136,18 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
         for frame, transform in results.items():
             assert held[frame].transform == transform.transform
 
-        # the overlay of the last result: that camera's picture, the verdict's banner on top
-        spin_until(executor, lambda: overlays and overlays[-1].header.frame_id == f"{b}_optical",
-                   30, f"{b}'s overlay")
+        # the overlay of the last result (a's goal was sent after b's had started): that
+        # camera's picture, the verdict's banner on top
+        spin_until(executor, lambda: overlays and overlays[-1].header.frame_id == f"{a}_optical",
+                   30, f"{a}'s overlay")
         picture = conv.image_to_rgb(overlays[-1])
-        assert picture.shape == (msgs[cams[1]["topics"]["camera_info"]].height,
-                                 msgs[cams[1]["topics"]["camera_info"]].width, 3)
+        assert picture.shape == (msgs[cams[0]["topics"]["camera_info"]].height,
+                                 msgs[cams[0]["topics"]["camera_info"]].width, 3)
         from semcal_ros.engine.overlay import VERDICT_COLOURS
 
         banner = np.median(picture[:6, :40].reshape(-1, 3), axis=0)  # left of the text
         nearest = min(VERDICT_COLOURS, key=lambda v: np.abs(banner - VERDICT_COLOURS[v]).sum())
-        assert nearest == second.result.verdict, (banner, second.result.verdict)
+        assert nearest == first.result.verdict, (banner, first.result.verdict)
 
         # per-camera diagnostics carry the verdict and its figures; the level follows it
         watcher.latest.clear()

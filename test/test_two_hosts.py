@@ -87,10 +87,11 @@ def test_vehicle_map_crosses_the_link_and_the_roadside_unit_calibrates(two_hosts
     # domain, static peers named, shared memory on), and, as the control, from the roadside?
     outside = two_hosts.graph("outside").start_helper(
         "probe", "probe", "--seconds", "4", "--out", str(logs / "outside.json"))
-    inside = two_hosts.graph("rsu").start_helper(
-        "probe", "probe", "--seconds", "4", "--out", str(logs / "inside.json"))
+    inside = two_hosts.graph("rsu").start_helper(  # the control: until it has seen them
+        "probe", "probe", "--seconds", "120", "--until", "map_builder,calibrator",
+        "--out", str(logs / "inside.json"))
     assert client.wait(150) == 0, client.log()
-    assert outside.wait(30) == 0 and inside.wait(30) == 0
+    assert outside.wait(30) == 0 and inside.wait(150) == 0
     assert lidar_player.wait(20) == 0
     after = link.vehicle.counters()
 
