@@ -13,6 +13,10 @@ adds two rules (docs/drift.md), kept here without ROS so that ``calibration_moni
   "unknown" (cannot judge) are shown at once. A check whose level is not shown yet says
   "(confirming k/n)".
 
+* **The window** (``window`` > 1, a static camera): a check judges the per-pixel fusion of the
+  last ``window`` label images the watch was given (:func:`~semcal_ros.engine.frames.fuse_labels`),
+  so a passing bus or a flickering segmenter does not read as drift.
+
 The watch holds no lock: a node serialises its calls (it runs the check itself, the expensive
 part, outside its lock). A check started before the calibration changed is recognised by its
 ``epoch`` and never becomes the new calibration's reference.
@@ -20,11 +24,13 @@ part, outside its lock). A check started before the calibration changed is recog
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from semcal_ros.engine.drift import DriftChecker, DriftReport
+from semcal_ros.engine.frames import fuse_labels
 from semcal_ros.engine.pose import Pose
 
 #: The message of the check that became the reference.
@@ -72,10 +78,27 @@ class DriftWatch:
     checks: int = 0
     last: DriftReport | None = None
     epoch: int = 0  # bumped by every reset: checks of an older calibration are told apart
+    window: int = 1  # label images fused per check (a static camera); 1 = the newest alone
+    recent: deque = field(default_factory=deque)  # the last ``window`` distinct label images
 
     def __post_init__(self) -> None:
         if self.confirm < 1:
             raise ValueError(f"confirm must be >= 1, got {self.confirm}")
+        if self.window < 1:
+            raise ValueError(f"label window must be >= 1 frames, got {self.window}")
+        self.recent = deque(self.recent, maxlen=self.window)
+
+    def windowed(self, labels: np.ndarray | None) -> np.ndarray | None:
+        """The label image a check judges: with ``window`` > 1 ``labels`` joins the window (the
+        same image object given again does not count twice; another size starts it again) and
+        the window's fusion is returned; else ``labels`` itself."""
+        if labels is None or self.window == 1:
+            return labels
+        if self.recent and self.recent[-1].shape != labels.shape:
+            self.recent.clear()
+        if not self.recent or self.recent[-1] is not labels:
+            self.recent.append(labels)
+        return fuse_labels(list(self.recent)).labels if len(self.recent) > 1 else labels
 
     def new_calibration(self) -> None:
         """A new calibration: no reference, and the streak starts again."""
@@ -89,9 +112,10 @@ class DriftWatch:
 
     def check(self, checker: DriftChecker, labels: np.ndarray | None,
               calibrated: Pose | None = None) -> Verdict:
-        """Run one check (from the reference, if any) and :meth:`observe` it."""
+        """Run one check (from the reference, if any) of ``labels`` (with a window: of the
+        window's fusion, :meth:`windowed`) and :meth:`observe` it."""
         epoch = self.epoch
-        report = checker.check(labels, calibrated, reference=self.reference)
+        report = checker.check(self.windowed(labels), calibrated, reference=self.reference)
         return self.observe(report, epoch)
 
     def observe(self, report: DriftReport, epoch: int | None = None) -> Verdict:

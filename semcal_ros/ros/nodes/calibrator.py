@@ -64,6 +64,7 @@ from semcal_ros.ros.camera_inputs import CameraInputs, camera_topics
 from semcal_ros.ros.diagnostics import Diagnostics
 from semcal_ros.ros.engine_job import EngineJob, GoalRunner, GoalState
 from semcal_ros.ros.goal_answers import GoalAnswers
+from semcal_ros.ros.label_window import WindowedCameraInputs, window_labels
 from semcal_ros.ros.map_intake import MapIntake
 from semcal_ros.ros.params import declare_and_read
 from semcal_ros.ros.result_publisher import ResultPublisher
@@ -88,8 +89,13 @@ class CalibratorNodeParams:
     overlay_file: str = ""  # also write the overlay picture here (PNG) after each success
     image_transport: str = "raw"  # camera image: raw, or compressed (<image_raw>/compressed)
     labels_transport: str = "raw"  # label image: raw, or compressed (PNG only; JPEG refused)
+    # a static camera: calibrate against the per-pixel fusion of its last N label images
+    # (semcal_ros.ros.label_window); 1 = the newest image only
+    label_window: int = 1
 
     def __post_init__(self) -> None:
+        if self.label_window < 1:
+            raise ValueError(f"label_window must be >= 1 frames, got {self.label_window}")
         if not 0 < self.feedback_period <= 1.0:
             raise ValueError("feedback_period must be in (0, 1] s (feedback at least once a "
                              f"second), got {self.feedback_period}")
@@ -109,10 +115,12 @@ class CalibratorNode(Node):
         # map is prepared with it once
         self.maps = MapIntake(mapping_for(self.defaults, self.mapping), self.opts.map_frame,
                               self.get_logger())
-        self.cameras = {t.name: CameraInputs(t, self.get_logger().error, self.resolve_topic_name,
-                                             self.opts.image_transport, self.opts.labels_transport,
-                                             self.get_logger().warning)
-                        for t in camera_topics(self.opts.cameras)}
+        self.cameras: dict[str, CameraInputs] = {
+            t.name: WindowedCameraInputs(t, self.get_logger().error, self.resolve_topic_name,
+                                         self.opts.image_transport, self.opts.labels_transport,
+                                         self.get_logger().warning,
+                                         window=self.opts.label_window)
+            for t in camera_topics(self.opts.cameras)}
         if self.opts.map_file:
             self.maps.load_file(self.opts.map_file)
 
@@ -200,9 +208,13 @@ class CalibratorNode(Node):
     def _calibrate(self, job: EngineJob, state: GoalState, inputs: Inputs, request: Request,
                    camera: CameraInputs) -> Calibration:
         """(engine thread) The engine's calibration and overlay on the shared prepared map,
-        drawn over the camera's newest image (the label colours without a matching one)."""
+        drawn over the camera's newest image (the label colours without a matching one);
+        against the fusion of the camera's last label images with ``label_window`` > 1."""
+        labels, fused = window_labels(camera, inputs.labels)
+        if fused:
+            self.get_logger().info(f"goal for '{request.camera_frame}': {fused}")
         return calibrate_and_draw(
-            None, inputs.labels, inputs.camera, request.initial, request.params, self.mapping,
+            None, labels, inputs.camera, request.initial, request.params, self.mapping,
             prepared=inputs.map.prepared, background=camera.snapshot().rgb,
             seed=request.seed, progress=lambda p: self.goals.progress(state, p),
             should_stop=job.should_stop)
