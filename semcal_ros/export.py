@@ -14,6 +14,7 @@ adapter.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,8 +31,9 @@ from semcal_ros.engine.pose import BODY_FROM_OPTICAL, Pose
 FORMATS = ("urdf", "static-tf", "matrix")
 
 #: The fixed joint from a REP-103 body frame (x forward, y left, z up) to the optical frame
-#: (z forward, x right, y down), as camera drivers' URDFs write it.
-BODY_TO_OPTICAL_RPY = "-pi/2 0 -pi/2"
+#: (z forward, x right, y down): camera drivers' xacro files write it ``-pi/2 0 -pi/2``, but that
+#: is xacro's expression syntax; URDF readers (urdfdom, urdf_parser_py) take plain numbers only.
+BODY_TO_OPTICAL_RPY = f"{-math.pi / 2!r} 0 {-math.pi / 2!r}"
 
 MATRIX_CONVENTION = ("T_<a>_<b> is the 4x4 homogeneous transform that maps points given in frame "
                      "<b> into frame <a> (p_a = T_a_b @ [x, y, z, 1]); its last column is the "
@@ -121,7 +123,8 @@ def to_urdf(fp: FramedPose, body_frame: str | None = None) -> str:
 
     The joint's origin is the child's pose in the parent (URDF convention). With ``body_frame``
     the calibrated joint goes to that REP-103 body frame (x forward, y left, z up) and a second
-    fixed joint ``rpy="-pi/2 0 -pi/2"`` leads to the optical child frame.
+    fixed joint (rpy -pi/2 0 -pi/2, written as plain numbers: :data:`BODY_TO_OPTICAL_RPY`)
+    leads to the optical child frame. Every attribute is a plain number a URDF parser reads.
     """
     if body_frame is not None and body_frame in (fp.parent, fp.child):
         raise ValueError(f"--body-frame '{body_frame}' must differ from the pose's frames "

@@ -103,7 +103,8 @@ def test_urdf_with_a_body_frame(tmp_path, capsys, name):
     text = out.read_text()
     robot = ET.fromstring(text)
     second = [j for j in robot.findall("joint") if j.find("parent").get("link") == "camera_link"]
-    assert len(second) == 1 and second[0].find("origin").get("rpy") == "-pi/2 0 -pi/2"
+    assert len(second) == 1 and [float(v) for v in second[0].find("origin").get("rpy").split()] == [
+        -math.pi / 2, 0.0, -math.pi / 2]
     assert second[0].find("origin").get("xyz") == "0 0 0"
     np.testing.assert_allclose(compose_urdf(text, "map", "camera_optical"), pose_matrix(pose),
                                atol=1e-9, rtol=0)

@@ -21,8 +21,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="urdf | static-tf | matrix")
     p.add_argument("--body-frame", metavar="NAME",
                    help="urdf only: the calibrated joint goes to this REP-103 body frame (x "
-                        "forward, y left, z up), and a fixed joint rpy=\"-pi/2 0 -pi/2\" to the "
-                        "optical child frame (e.g. camera_link)")
+                        "forward, y left, z up), and a fixed joint rpy=-pi/2 0 -pi/2 (written as "
+                        "plain numbers) to the optical child frame (e.g. camera_link)")
     p.add_argument("--out", metavar="FILE", help="write here instead of stdout")
     p.set_defaults(func=run)
 
