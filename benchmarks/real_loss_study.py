@@ -13,7 +13,9 @@ setting of a scene. Per run it records the error, the loss, the seconds and the 
     .venv/bin/python benchmarks/real_loss_study.py --table /tmp/study*.json
 
 Settings (comma separated): ``l2`` the paper's masked L2 (no band), ``band`` L2 + 4 px boundary
-band, ``_uC`` adds ``uncovered_cost`` C, ``mi`` mutual information, ``+p`` the class
+band, ``_uC`` adds ``uncovered_cost`` C, ``mi`` mutual information, ``lik`` the likelihood under
+a confusion matrix shrunk towards a prior (``_aW`` its ``prior_weight``, ``_cW`` its
+``confusion_weight``), ``+p`` the class
 probabilities as the target. ``--label-noise`` applies a noise model of
 ``semcal_tools.scenes.labelnoise`` to labels.png (synthetic scenes).
 """
@@ -41,6 +43,8 @@ def setting_params(name: str, base):
         loss = replace(loss, kind="l2", boundary_band_px=4.0, uncovered_cost=0.0)
     elif kind == "mi":
         loss = replace(loss, kind="mi", uncovered_cost=0.0)
+    elif kind == "lik":
+        loss = replace(loss, kind="likelihood", uncovered_cost=0.0)
     elif kind == "default":
         pass
     else:
@@ -50,6 +54,10 @@ def setting_params(name: str, base):
             loss = replace(loss, uncovered_cost=float(m[1:]))
         elif m.startswith("b"):
             loss = replace(loss, boundary_band_px=float(m[1:]))
+        elif m.startswith("a"):
+            loss = replace(loss, prior_weight=float(m[1:]))
+        elif m.startswith("c"):
+            loss = replace(loss, confusion_weight=float(m[1:]))
         else:
             raise ValueError(f"unknown modifier '{m}' in '{name}'")
     return replace(base, loss=loss)
@@ -152,7 +160,8 @@ GROUPS = {"KITTI 00 f0 6 scans": ("kitti00_f0_6scans",), "KITTI 00 f0 1 scan": (
 
 
 #: scene-folder suffixes of `/work/realscenes` (README.txt there): the label image's source
-SOURCES = {"_v2": "ESPNetv2", "_tpu": "EdgeTPU DeepLab", "_ideal": "ideal labels"}
+SOURCES = {"_v2": "ESPNetv2", "_tpu": "EdgeTPU DeepLab", "_ideal": "ideal labels",
+           "_esp": "ESPNetv2", "_edge": "EdgeTPU DeepLab", "_truth": "ideal labels"}
 
 
 def group_of(scene: str) -> str:

@@ -33,12 +33,21 @@ from semcal_ros.engine.labels import INVALID, SKY, palette_array
 
 
 #: The per-pixel costs, by parameter value, with the name tables print: the one list of them.
-LOSS_KINDS = {"l2": "L2", "huber": "Huber", "mi": "MI"}
+LOSS_KINDS = {"l2": "L2", "huber": "Huber", "mi": "MI", "likelihood": "Likelihood"}
+
+#: Pairs of classes real segmenters and point labellers confuse with each other (measured on the
+#: shared KITTI and PJLab frames, docs/real-data.md): the likelihood's prior gives them weight.
+CONFUSIONS = (("terrain", "vegetation"), ("building", "vegetation"), ("sky", "building"),
+              ("sidewalk", "road"), ("wall", "building"), ("fence", "building"),
+              ("fence", "vegetation"), ("pole", "traffic sign"), ("pole", "traffic light"),
+              ("terrain", "sidewalk"), ("car", "truck"))
 
 
 @dataclass(frozen=True)
 class LossParams:
-    kind: str = "l2"  # "l2" (squared colour distance), "huber" or "mi" (mutual information)
+    kind: str = "l2"  # "l2" (squared colour distance), "huber", "mi" (mutual information) or
+    # "likelihood" (the mean log-likelihood of the labels under a confusion matrix estimated at
+    # the pose, shrunk towards a prior that favours the diagonal and the usual confusions)
     huber_delta: float = 0.3
     crop_top: float = 0.0  # fraction of image rows, from the top, left out of the loss
     min_coverage: float = 0.05  # fewer rendered pixels over the target's non-sky area = degenerate
@@ -58,6 +67,11 @@ class LossParams:
     # label errors (a blob of a wrong class, a missed object) and left out of a second refinement;
     # a pose error only makes thin bands along boundaries. 0 = off (the paper).
     outlier_width_px: float = 0.0
+    # likelihood: the prior's weight against the histogram's own rows (0 = mutual information,
+    # blind to swapped classes; large = a fixed identity, blind to consistent confusions)
+    prior_weight: float = 1.0
+    # likelihood: a usual confusion's weight in the prior, against 1 on the diagonal
+    confusion_weight: float = 0.3
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -76,6 +90,11 @@ class LossParams:
         if not 0.0 <= self.outlier_width_px <= 200.0:
             raise ValueError(f"loss.outlier_width_px must be in [0, 200], got "
                              f"{self.outlier_width_px}")
+        if not 0.0 <= self.prior_weight <= 100.0:
+            raise ValueError(f"loss.prior_weight must be in [0, 100], got {self.prior_weight}")
+        if not 0.0 <= self.confusion_weight <= 1.0:
+            raise ValueError(f"loss.confusion_weight must be in [0, 1], got "
+                             f"{self.confusion_weight}")
         if not 0.0 <= self.boundary_band_px <= 50.0:
             raise ValueError(f"loss.boundary_band_px must be in [0, 50], got "
                              f"{self.boundary_band_px}")
@@ -116,7 +135,7 @@ def loss_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
     """(loss, coverage) in numpy; ``target`` holds aligned classes (INVALID = ignore).
     ``band_px``: the boundary band at this image's resolution (default ``params``');
     ``probabilities``: (H, W, N_CLASSES) aligned class probabilities (the expected cost)."""
-    if params.kind == "mi":
+    if params.kind in ("mi", "likelihood"):
         return _mi_reference(rendered, target, params, probabilities)
     band = params.boundary_band_px if band_px is None else band_px
     if band > 0:
@@ -166,7 +185,43 @@ def _mi_reference(rendered: np.ndarray, target: np.ndarray, params: LossParams,
         np.add.at(joint, rows, q)
     if joint.sum() == 0 or coverage < params.min_coverage:
         return params.degenerate_loss, coverage
+    if params.kind == "likelihood":
+        return likelihood_share(joint, confusion_prior(params.confusion_weight),
+                                params.prior_weight), coverage
     return conditional_entropy_share(joint), coverage
+
+
+def confusion_prior(confusion_weight: float) -> np.ndarray:
+    """float64[N_CLASSES + 1, N_CLASSES]: per rendered class (last row: nothing rendered), the
+    prior distribution of the label there: the class itself (1), the classes it is usually
+    confused with (``confusion_weight``); nothing rendered is sky. Rows sum to 1."""
+    from semcal_ros.engine.labels import CITYSCAPES_ID
+
+    prior = np.zeros((N_CLASSES + 1, N_CLASSES))
+    prior[np.arange(N_CLASSES), np.arange(N_CLASSES)] = 1.0
+    for a, b in CONFUSIONS:
+        i, j = CITYSCAPES_ID[a], CITYSCAPES_ID[b]
+        prior[i, j] = prior[j, i] = confusion_weight
+    prior[N_CLASSES, SKY] = 1.0
+    return prior / prior.sum(axis=1, keepdims=True)
+
+
+def likelihood_share(joint: np.ndarray, prior: np.ndarray, weight: float) -> float:
+    """-mean log C[rendered, label] / H(T), with C the joint histogram's rows (the confusion
+    matrix at this pose) shrunk towards ``prior``: C = (row share + weight x prior) / (1 +
+    weight). ``weight`` 0 gives H(T | R) / H(T) (mutual information); with a weight, a class drawn
+    where the labels have another costs what the prior says of that pair, so a pose that maps
+    road onto building no longer scores as well as the truth (mutual information does not see
+    which class matches which)."""
+    joint = np.asarray(joint, float)
+    n = joint.sum()
+    rows = joint.sum(axis=1, keepdims=True)
+    cols = joint.sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        conf = (joint / np.where(rows > 0, rows, 1.0) + weight * prior) / (1.0 + weight)
+        cost = -np.sum(np.where(joint > 0, joint * np.log(np.where(joint > 0, conf, 1.0)), 0.0))
+        h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
+    return float(cost / n / h_t) if h_t > 0 else 0.0
 
 
 def conditional_entropy_share(joint: np.ndarray) -> float:
@@ -337,6 +392,25 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft):
 
 
 @numba.njit(cache=True, nogil=True)
+def _likelihood(joint, prior, weight, h_target):
+    """The kernel of :func:`likelihood_share` (``h_target`` precomputed)."""
+    n = 0.0
+    h = 0.0
+    for r in range(joint.shape[0]):
+        nr = 0.0
+        for t in range(joint.shape[1]):
+            nr += joint[r, t]
+        if nr <= 0:
+            continue
+        n += nr
+        for t in range(joint.shape[1]):
+            c = joint[r, t]
+            if c > 0:
+                h -= c * np.log((c / nr + weight * prior[r, t]) / (1.0 + weight))
+    return h / n / h_target if n > 0 and h_target > 0 else 0.0
+
+
+@numba.njit(cache=True, nogil=True)
 def _conditional_entropy(joint, h_target):
     n = 0.0
     h = 0.0
@@ -366,7 +440,9 @@ class LabelLoss:
         self.table = pair_table(params.kind, params.huber_delta)
         self.start = int(round(params.crop_top * self.shape[0])) * self.shape[1]
         self.band_px = params.boundary_band_px / scale
-        self.mi = params.kind == "mi"
+        self.mi = params.kind in ("mi", "likelihood")  # both from the joint histogram
+        self.prior = (confusion_prior(params.confusion_weight) if params.kind == "likelihood"
+                      else None)
         self.banded = self.band_px > 0 and not self.mi
         self.soft = probabilities is not None
         self.costs: np.ndarray | None = None
@@ -408,6 +484,9 @@ class LabelLoss:
             coverage = n_covered / n_scene if n_scene else 0.0
             if coverage < self.params.min_coverage or joint.sum() == 0:
                 return self.params.degenerate_loss, coverage
+            if self.prior is not None:
+                return float(_likelihood(joint, self.prior, self.params.prior_weight,
+                                         self.h_target)), coverage
             return float(_conditional_entropy(joint, self.h_target)), coverage
         if self.costs is not None:
             total, n_valid, n_scene, n_covered = _cost_kernel(flat, self.target, self.start,

@@ -151,7 +151,8 @@ class VerificationParams:
     """
 
     starts: int = 6  # extra starts besides the initial guess
-    noise: float = 1.0  # uniform noise of the starts, as a fraction of the search bounds
+    noise: float = 1.0  # uniform noise of the starts, as a fraction of the bounds (> 1 acts as 1:
+    # the search stays within the bounds of its start)
     refine_margin: float = 0.2  # coarse loss <= best * (1 + margin): worth refining
     refine_max: int = 3  # at most this many basins refined at full resolution
     merge_translation_m: float = 0.3  # coarse results closer than this and
