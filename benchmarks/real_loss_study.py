@@ -15,7 +15,8 @@ setting of a scene. Per run it records the error, the loss, the seconds and the 
 Settings (comma separated): ``l2`` the paper's masked L2 (no band), ``band`` L2 + 4 px boundary
 band, ``_uC`` adds ``uncovered_cost`` C, ``mi`` mutual information, ``lik`` the likelihood under
 a confusion matrix shrunk towards a prior (``_aW`` its ``prior_weight``, ``_cW`` its
-``confusion_weight``), ``+p`` the class
+``confusion_weight``, ``_em`` held through each stage), ``bal`` the class-balanced mismatch
+(band and ``_uC`` apply), ``+p`` the class
 probabilities as the target. ``--label-noise`` applies a noise model of
 ``semcal_tools.scenes.labelnoise`` to labels.png (synthetic scenes).
 """
@@ -43,6 +44,8 @@ def setting_params(name: str, base):
         loss = replace(loss, kind="l2", boundary_band_px=4.0, uncovered_cost=0.0)
     elif kind == "mi":
         loss = replace(loss, kind="mi", uncovered_cost=0.0)
+    elif kind == "bal":
+        loss = replace(loss, kind="balanced", uncovered_cost=0.0)
     elif kind == "lik":
         loss = replace(loss, kind="likelihood", uncovered_cost=0.0)
     elif kind == "default":
@@ -56,6 +59,8 @@ def setting_params(name: str, base):
             loss = replace(loss, boundary_band_px=float(m[1:]))
         elif m.startswith("a"):
             loss = replace(loss, prior_weight=float(m[1:]))
+        elif m == "em":
+            loss = replace(loss, em=True)
         elif m.startswith("c"):
             loss = replace(loss, confusion_weight=float(m[1:]))
         else:
@@ -115,6 +120,9 @@ def run_scene(folder: Path, settings: list[str], start_protocols: list[tuple[flo
                                r_deg=rotation_error_deg(res.pose, truth), loss=float(res.loss),
                                verdict=q.verdict if q else "", reason=q.reason if q else "",
                                agreement=q.agreement if q else None,
+                               coverage=q.coverage if q else None,
+                               unc_t=list(q.uncertainty_translation_m) if q else None,
+                               unc_r=list(q.uncertainty_rpy_deg) if q else None,
                                pose=pose_to_dict(res.pose))
                 except ValueError as exc:
                     rec.update(t_cm=translation_error(start, truth) * 100,

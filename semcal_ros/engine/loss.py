@@ -33,7 +33,8 @@ from semcal_ros.engine.labels import INVALID, SKY, palette_array
 
 
 #: The per-pixel costs, by parameter value, with the name tables print: the one list of them.
-LOSS_KINDS = {"l2": "L2", "huber": "Huber", "mi": "MI", "likelihood": "Likelihood"}
+LOSS_KINDS = {"l2": "L2", "huber": "Huber", "mi": "MI", "likelihood": "Likelihood",
+              "balanced": "Balanced"}
 
 #: Pairs of classes real segmenters and point labellers confuse with each other (measured on the
 #: shared KITTI and PJLab frames, docs/real-data.md): the likelihood's prior gives them weight.
@@ -45,9 +46,11 @@ CONFUSIONS = (("terrain", "vegetation"), ("building", "vegetation"), ("sky", "bu
 
 @dataclass(frozen=True)
 class LossParams:
-    kind: str = "l2"  # "l2" (squared colour distance), "huber", "mi" (mutual information) or
+    kind: str = "l2"  # "l2" (squared colour distance), "huber", "mi" (mutual information),
     # "likelihood" (the mean log-likelihood of the labels under a confusion matrix estimated at
-    # the pose, shrunk towards a prior that favours the diagonal and the usual confusions)
+    # the pose, shrunk towards a prior that favours the diagonal and the usual confusions) or
+    # "balanced" (every mismatch costs alike, each label class weighted by the inverse of its
+    # share: a class-matched divergence balanced over classes, after Chen & Sun 2026)
     huber_delta: float = 0.3
     crop_top: float = 0.0  # fraction of image rows, from the top, left out of the loss
     min_coverage: float = 0.05  # fewer rendered pixels over the target's non-sky area = degenerate
@@ -72,6 +75,9 @@ class LossParams:
     prior_weight: float = 1.0
     # likelihood: a usual confusion's weight in the prior, against 1 on the diagonal
     confusion_weight: float = 0.3
+    # likelihood: hold the confusion matrix fixed through each refinement stage, estimated at
+    # the stage's start (EM); false = re-estimated at every pose
+    em: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -105,14 +111,33 @@ def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
     ``mi`` has no table (the L2 one is returned, used only by the reference's band)."""
     colours = palette_array().astype(np.float64) / 255.0
     diff = colours[:, None, :] - colours[None, :, :]
-    if kind in ("l2", "mi"):
+    if kind in ("l2", "mi", "likelihood"):
         return np.sum(diff * diff, axis=2)
+    if kind == "balanced":  # per label class weights: :func:`balanced_table`
+        return (np.arange(256)[:, None] != np.arange(256)[None, :]).astype(np.float64)
     a = np.abs(diff)
     huber = np.where(a <= delta, 0.5 * a * a, delta * (a - 0.5 * delta))
     return np.sum(huber, axis=2)
 
 
 N_CLASSES = 19  # aligned classes are Cityscapes trainIds 0..18
+
+
+def balanced_table(target: np.ndarray) -> np.ndarray:
+    """float64[256, 256]: the ``balanced`` loss's cost of rendered class r where the labels say
+    t: 0 when they agree, else the weight of t, the inverse of its share of the labelled pixels
+    over the number of classes present (each class weighs alike, however few its pixels: poles
+    and signs count as much as the road). Sky keeps weight 1 (it is where the map is not)."""
+    t = target[target != INVALID]
+    counts = np.bincount(t, minlength=256).astype(np.float64)
+    present = counts > 0
+    weight = np.ones(256)
+    if present.any():
+        share = counts / counts.sum()
+        weight[present] = 1.0 / (share[present] * present.sum())
+    weight[SKY] = 1.0
+    table = pair_table("balanced") * weight[None, :]
+    return table
 
 
 def class_distances(target: np.ndarray, band_px: float) -> np.ndarray:
@@ -437,12 +462,14 @@ class LabelLoss:
         self.params = params
         self.shape = target_aligned.shape
         self.target = np.ascontiguousarray(target_aligned, dtype=np.uint8).ravel()
-        self.table = pair_table(params.kind, params.huber_delta)
+        self.table = (balanced_table(self.target) if params.kind == "balanced"
+                      else pair_table(params.kind, params.huber_delta))
         self.start = int(round(params.crop_top * self.shape[0])) * self.shape[1]
         self.band_px = params.boundary_band_px / scale
         self.mi = params.kind in ("mi", "likelihood")  # both from the joint histogram
         self.prior = (confusion_prior(params.confusion_weight) if params.kind == "likelihood"
                       else None)
+        self.frozen: np.ndarray | None = None  # -log C held fixed (freeze), or None
         self.banded = self.band_px > 0 and not self.mi
         self.soft = probabilities is not None
         self.costs: np.ndarray | None = None
@@ -472,6 +499,27 @@ class LabelLoss:
     def __call__(self, rendered: np.ndarray) -> float:
         return self.evaluate(rendered)[0]
 
+    def freeze(self, rendered: np.ndarray) -> None:
+        """The likelihood's E step: the confusion matrix estimated at ``rendered`` (shrunk
+        towards the prior) is held fixed, and the loss becomes the mean of -log C[rendered,
+        label] under it until :meth:`thaw`. With C re-estimated at every pose the loss absorbs
+        part of a misalignment into C (a flat basin: 3-4 % per 25 cm on real frames); held
+        fixed, a misplaced boundary costs what the labels at the estimate said it should."""
+        if self.prior is None:
+            return
+        flat = np.ascontiguousarray(rendered).ravel()
+        joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+        _joint_kernel(flat, self.target, self.start, joint, self.probabilities, self.soft)
+        rows = joint.sum(axis=1, keepdims=True)
+        w = self.params.prior_weight
+        conf = (joint / np.where(rows > 0, rows, 1.0) + w * self.prior) / (1.0 + w)
+        conf = np.where(rows > 0, conf, self.prior)  # a class not drawn yet: the prior
+        self.frozen = -np.log(np.maximum(conf, 1e-4))
+
+    def thaw(self) -> None:
+        """Back to the confusion matrix re-estimated at every pose."""
+        self.frozen = None
+
     def evaluate(self, rendered: np.ndarray) -> tuple[float, float]:
         """(loss, coverage of the target's non-sky pixels by rendered points)."""
         if rendered.shape != self.shape:
@@ -484,6 +532,9 @@ class LabelLoss:
             coverage = n_covered / n_scene if n_scene else 0.0
             if coverage < self.params.min_coverage or joint.sum() == 0:
                 return self.params.degenerate_loss, coverage
+            if self.frozen is not None:
+                n = joint.sum()
+                return float(np.sum(joint * self.frozen) / n / self.h_target), coverage
             if self.prior is not None:
                 return float(_likelihood(joint, self.prior, self.params.prior_weight,
                                          self.h_target)), coverage

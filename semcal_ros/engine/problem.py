@@ -131,6 +131,16 @@ class Problem:
         """The loss (``params.loss.kind``) at ``pose`` (``stage`` -1: full resolution)."""
         return self.level(stage).loss(self.render(pose, stage))
 
+    def freeze(self, pose: Pose) -> None:
+        """Hold the likelihood's confusion matrix fixed at ``pose`` at every level (EM's E
+        step, ``loss.em``); other losses are unchanged."""
+        for lv in self._levels.values():
+            lv.loss.freeze(render(self.pmap, lv.setup.view(pose)))
+
+    def thaw(self) -> None:
+        for lv in self._levels.values():
+            lv.loss.thaw()
+
     def masked(self, ignore: np.ndarray) -> "Problem":
         """The same problem with the target's pixels where ``ignore`` is True left out of the loss
         (set to INVALID): the prepared map and the view set-ups are shared, only the targets and

@@ -244,8 +244,9 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     outside = beyond_basin(offset, qp, sp.yaw_search) if offset is not None else ""
     if outside:
         # a good verdict from an unmeasured start is not trusted; any verdict names the start
-        verdict = "inconclusive" if verdict == "good" else verdict
-        reason = outside if reason.startswith("every axis") else f"{reason}; {outside}"
+        was_good = verdict == "good"
+        verdict = "inconclusive" if was_good else verdict
+        reason = outside if was_good else f"{reason}; {outside}"
     return QualityReport(
         verdict=verdict, reason=reason, agreement=agreement, agreement_per_class=per_class,
         coverage=coverage,

@@ -202,13 +202,19 @@ class Search:
         """From a coarse result: the first stage's restarts (unless ``restart_first`` is False),
         then every later stage and its restarts."""
         stages = self.problem.stages
+        em = self.problem.params.loss.em and hasattr(self.problem, "freeze")
         if restart_first:
             center, loss = self.restart(0, center, loss, run, label)
         for k in range(1, len(stages)):
             self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
                                      f"(1/{stages[k].scale} resolution)")
+            if em:  # E step at the stage's start, then the stage minimises under it
+                self.problem.freeze(self.pose_at(center, np.zeros(len(self.free))))
             center, loss = self.nelder_mead(k, center, run)
             center, loss = self.restart(k, center, loss, run, label)
+        if em:  # results are compared under the loss re-estimated at each pose
+            self.problem.thaw()
+            loss = self.score(self.pose_at(center, np.zeros(len(self.free))), -1)
         return center, loss
 
 
