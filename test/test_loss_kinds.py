@@ -1,0 +1,109 @@
+"""The losses for real labels: the likelihood under a confusion matrix (tolerates a consistent
+confusion, cannot be won by swapping classes), its EM form, and the class-balanced mismatch."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from semcal_ros.engine.labels import CITYSCAPES_ID, INVALID, SKY
+from semcal_ros.engine.loss import (
+    LabelLoss, LossParams, balanced_table, confusion_prior, likelihood_share, loss_reference,
+    pair_table,
+)
+
+ROAD, BUILDING, VEG, CAR = (CITYSCAPES_ID[c] for c in ("road", "building", "vegetation", "car"))
+
+
+def _street(h: int = 90, w: int = 120) -> np.ndarray:
+    """Labels of a street: sky, building band, vegetation, road, a car."""
+    t = np.full((h, w), SKY, np.uint8)
+    t[20:45] = BUILDING
+    t[45:55, : w // 2] = VEG
+    t[45:55, w // 2:] = BUILDING
+    t[55:] = ROAD
+    t[60:75, 30:50] = CAR
+    return t
+
+
+def _render(labels: np.ndarray, shift: int = 0) -> np.ndarray:
+    """The map drawn with a vertical offset (a pitch error); nothing drawn over sky."""
+    r = np.roll(labels, shift, axis=0).copy()
+    r[r == SKY] = INVALID
+    return r
+
+
+@pytest.mark.parametrize("kind", ["likelihood", "balanced", "mi"])
+def test_the_kernel_equals_the_reference(kind):
+    rng = np.random.default_rng(1)
+    t = _street()
+    r = _render(t, 2)
+    noise = rng.random(t.shape) < 0.1
+    r[noise] = rng.choice([ROAD, BUILDING, VEG, INVALID], int(noise.sum()))
+    params = LossParams(kind=kind)
+    table = balanced_table(t) if kind == "balanced" else pair_table(kind)
+    got = LabelLoss(t, params).evaluate(r)
+    ref = loss_reference(r, t, table, params)
+    assert got[0] == pytest.approx(ref[0], rel=1e-9) and got[1] == pytest.approx(ref[1])
+
+
+def test_swapped_classes_cost_under_the_likelihood_but_not_under_mi():
+    """MI sees only how informative the rendered class is of the label: drawing road where the
+    labels say building and building where they say road is as good as the truth. The
+    likelihood's prior makes the swap cost; the balanced mismatch too."""
+    t = _street()
+    truth = _render(t)
+    swapped = truth.copy()
+    swapped[truth == ROAD], swapped[truth == BUILDING] = BUILDING, ROAD
+    mi = LabelLoss(t, LossParams(kind="mi"))
+    assert mi(swapped) == pytest.approx(mi(truth), abs=1e-12)
+    for kind in ("likelihood", "balanced"):
+        loss = LabelLoss(t, LossParams(kind=kind))
+        assert loss(swapped) > loss(truth) + 0.1, kind
+
+
+def test_a_consistent_confusion_costs_the_likelihood_little_and_the_truth_still_wins():
+    """The point labeller calls a facade vegetation: at the truth every such pixel disagrees
+    in class, but consistently. The likelihood stays lowest at the truth: a view shifted by a
+    few rows, which puts other classes on the facade, is worse."""
+    t = _street()
+    truth = _render(t)
+    confused = truth.copy()
+    confused[45:55, 60:] = VEG  # the map's facade labelled vegetation
+    lik = LabelLoss(t, LossParams(kind="likelihood"))
+    for rows in (-4, -2, 2, 4):
+        assert lik(confused) < lik(np.roll(confused, rows, axis=0)), rows
+
+
+def test_the_prior_weight_spans_mi_and_a_fixed_identity():
+    joint = np.zeros((20, 19))
+    joint[ROAD, ROAD], joint[ROAD, BUILDING] = 80, 20
+    joint[BUILDING, BUILDING], joint[19, SKY] = 90, 50
+    prior = confusion_prior(0.3)
+    assert np.allclose(prior.sum(axis=1), 1.0)
+    from semcal_ros.engine.loss import conditional_entropy_share
+
+    assert likelihood_share(joint, prior, 0.0) == pytest.approx(conditional_entropy_share(joint))
+    assert likelihood_share(joint, prior, 1.0) > likelihood_share(joint, prior, 0.0)
+
+
+def test_em_holds_the_confusion_matrix_until_thawed():
+    """Frozen at the truth, a misaligned view costs more than when C is re-estimated there (the
+    re-estimate absorbs part of the misalignment); thawed, the loss is the stateless one."""
+    t = _street()
+    truth, off = _render(t), _render(t, 3)
+    loss = LabelLoss(t, LossParams(kind="likelihood", em=True))
+    free = loss(off)
+    loss.freeze(truth)
+    held = loss(off)
+    assert held > free
+    assert loss(truth) <= held
+    loss.thaw()
+    assert loss(off) == pytest.approx(free)
+
+
+def test_loss_parameters_are_checked():
+    with pytest.raises(ValueError, match="prior_weight"):
+        LossParams(kind="likelihood", prior_weight=-1.0)
+    with pytest.raises(ValueError, match="confusion_weight"):
+        replace(LossParams(), confusion_weight=2.0)
