@@ -127,7 +127,7 @@ def paper_params() -> CalibrationParams:
     return CalibrationParams(
         render=replace(d.render, splat_lambda=PAPER_LAMBDA, depth_falloff=0.0,
                        depth_falloff_coarse=0.0, lod_radius=0.0),
-        loss=replace(d.loss, boundary_band_px=0.0),
+        loss=replace(d.loss, kind="l2", boundary_band_px=0.0),
         schedule=ScheduleParams(scales=(4, 1), simplex=(1.0, 0.1), fatol=(1e-4, 1e-6),
                                 max_evaluations=(300, 150), restarts=(0, 2)),
         verification=replace(d.verification, starts=0))

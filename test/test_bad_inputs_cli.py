@@ -103,7 +103,7 @@ CASES = [
      "search angle bound 1e+09 deg is beyond 180 deg"),
     ("unknown-loss-kind",
      lambda d: {"--config": params_file(d / "c7.yaml", loss={"kind": "l1"})},
-     "loss.kind must be one of l2, huber, mi, not 'l1'"),
+     "loss.kind must be one of l2, huber, mi, likelihood, balanced, not 'l1'"),
     ("last-stage-not-full-resolution",
      lambda d: {"--config": params_file(d / "c8.yaml", schedule={"scales": [4, 2, 2]})},
      "the last stage must be at full resolution (scale 1)"),
