@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from semcal_ros.io import files, kitti
-    from semcal_ros.io.kitti_scene import parse_scans, projected_truth_labels, write_kitti_scene
+    from semcal_ros.workflows.kitti_scene import parse_scans, projected_truth_labels, write_kitti_scene
 
     scans = parse_scans(args.scans)
     if args.model is not None and args.model_config is None:

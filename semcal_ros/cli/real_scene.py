@@ -93,7 +93,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from semcal_ros.io.real_scene import RealSceneOptions, write_real_scene
+    from semcal_ros.workflows.real_scene import RealSceneOptions, write_real_scene
 
     if args.model is not None and args.model_config is None:
         raise ValueError("--model needs --model-config")
@@ -146,8 +146,9 @@ def gather_inputs(args: argparse.Namespace):
     """Read and check every input (image, camera, extrinsic, scans, poses, point labels)."""
     from semcal_ros.io import files, kitti
     from semcal_ros.io.calibration_files import read_calibration, read_extrinsic_yaml
-    from semcal_ros.io.real_scene import (RealSceneInputs, label_scans, read_lidar_scan,
-                                          scan_poses_in_map)
+    from semcal_ros.io.lidar_scans import read_lidar_scan, scan_poses_in_map
+    from semcal_ros.workflows.real_scene import RealSceneInputs
+    from semcal_ros.workflows.scene_labels import label_scans
 
     if args.calib and (args.camera_info or args.extrinsic):
         raise ValueError("--calib replaces --camera-info and --extrinsic: give one or the other")
@@ -198,7 +199,7 @@ def label_image_source(args: argparse.Namespace, inputs):
     """``label_image(rgb) -> (labels, description)`` for the chosen source; a model is loaded
     (and checked) here, before any work."""
     from semcal_ros.io import files
-    from semcal_ros.io.real_scene import projected_truth_labels
+    from semcal_ros.workflows.scene_labels import projected_truth_labels
 
     if args.model is not None:
         from semcal_ros.segmentation.image import ImageSegmenter
