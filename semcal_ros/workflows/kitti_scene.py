@@ -26,8 +26,8 @@ import numpy as np
 
 from semcal_ros.io import files, kitti
 from semcal_ros.io.lidar_scans import read_lidar_scan
-from semcal_ros.workflows.real_scene import (RealSceneInputs, RealSceneOptions, calibrator_yaml,
-                                             write_real_scene)
+from semcal_ros.workflows.real_scene import (MAP_DEFAULTS, RealSceneInputs, RealSceneOptions,
+                                             calibrator_yaml, write_real_scene)
 from semcal_ros.workflows.scene_labels import (label_scans, projected_truth_labels,
                                                transfer_labels)
 
@@ -76,7 +76,8 @@ class KittiSceneReport:
 
 def write_kitti_scene(root: str | Path, frame: int, scans: list[int], out: str | Path,
                       label_image: Callable[[np.ndarray, str], tuple[np.ndarray, str]],
-                      d_max: float = 60.0, voxel: float = 0.1, label_distance: float = 0.3,
+                      d_max: float = MAP_DEFAULTS.d_max, voxel: float = MAP_DEFAULTS.voxel,
+                      label_distance: float = 0.3,
                       seed: int = 0, log: Callable[[str], None] = print) -> KittiSceneReport:
     """Write the scene folder ``out`` for ``frame`` of the KITTI sequence ``root``.
 

@@ -41,7 +41,12 @@ from semcal_ros.engine.labels import (CITYSCAPES, INVALID, MOVING_KITTI, SEMANTI
 from semcal_ros.engine.pose import Pose
 from semcal_ros.io import files, ply
 from semcal_ros.io.scene_scans import write_scan_poses
+from semcal_ros.mapping import MapBuildParams
 from semcal_ros.workflows.scene_labels import label_shares, mark_moved_vehicles
+
+#: The map builder's defaults (``map_builder``'s ``mapping.*``): the one source of a scene map's
+#: ``d_max`` and ``voxel`` when the command is not given them.
+MAP_DEFAULTS = MapBuildParams()
 
 
 def reachable_crop_top(map_cloud: LabelledCloud, camera: CameraModel, initial: Pose,
@@ -79,12 +84,15 @@ class RealSceneInputs:
     cloud_labels: str = ""  # where the point labels came from
     label_notes: list[str] = field(default_factory=list)  # e.g. labels transferred to a scan
     scan_files: list[str] | None = None  # names under scans/ (default 000000.ply, ...)
+    # the registered point labeller that labelled the scans (None: label files): its vehicles
+    # are not told moving from parked, so the ones that moved between scans are marked here
+    labeller: str | None = None
 
 
 @dataclass
 class RealSceneOptions:
-    d_max: float = 60.0  # m, points farther from the sensor are dropped
-    voxel: float = 0.1  # m, map voxel size
+    d_max: float = MAP_DEFAULTS.d_max  # m, points farther from the sensor are dropped
+    voxel: float = MAP_DEFAULTS.voxel  # m, map voxel size
     remove_vehicles: bool = False  # True: no vehicle in the map, vehicle pixels masked
     merge_road_sidewalk: bool = True
     crop_margin_deg: float = 5.0  # pitch margin of the crop_top row (the search's pitch bound)
@@ -137,7 +145,7 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
                          f"image {camera.width}x{camera.height}")
 
     moved = [0] * len(inputs.scans)
-    if inputs.cloud_labels == "geometric":
+    if inputs.labeller is not None:
         moved = mark_moved_vehicles(inputs.scans, inputs.poses)
     # moving objects (and with remove_vehicles every vehicle) leave the scans before they are
     # placed: they win no voxel, and a map built again from scans/ is this map

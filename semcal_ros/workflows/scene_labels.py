@@ -17,16 +17,11 @@ from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import (CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID, KITTI_ID,
                                       VEHICLE_KITTI, moving_id_of)
 from semcal_ros.io.lidar_scans import read_point_labels, semantickitti_label_path
+from semcal_ros.segmentation.labellers import MODEL_FREE, make_labeller
 
-#: ``cloud_labels`` values that are not a file.
-LABEL_MODES = ("geometric", "semantickitti")
-
-
-def label_geometric(cloud: LabelledCloud) -> np.ndarray:
-    """SemanticKITTI ids from the geometric labeller (no network), its default parameters."""
-    from semcal_ros.segmentation.geometric import label_scan
-
-    return np.asarray(label_scan(cloud.xyz, cloud.extra.get("intensity")), np.uint16)
+#: ``cloud_labels`` values that are not a file: a labeller that needs no model, or the
+#: SemanticKITTI label files beside the scans.
+LABEL_MODES = (*MODEL_FREE, "semantickitti")
 
 
 def transfer_labels(target: np.ndarray, sources: list[np.ndarray], source_labels: list[np.ndarray],
@@ -46,17 +41,20 @@ def transfer_labels(target: np.ndarray, sources: list[np.ndarray], source_labels
 def label_scans(scan_paths: list[Path], clouds: list[LabelledCloud], cloud_labels: list[str],
                 poses: list[np.ndarray], label_distance: float = 0.3
                 ) -> tuple[list[LabelledCloud], str, list[str]]:
-    """The scans with SemanticKITTI labels: ``["geometric"]``, ``["semantickitti"]`` or one
-    label file per scan. Returns the labelled scans, a description and notes for the user.
+    """The scans with SemanticKITTI labels: a model-free labeller (``["geometric"]``),
+    ``["semantickitti"]`` or one label file per scan. Returns the labelled scans, a description
+    and notes for the user.
 
     semantickitti: a scan without its ``.label`` file takes, per point, the label of the nearest
     point of the labelled scans within ``label_distance`` (map frame); points with none that
     close are dropped (static structure is seen by several scans).
     """
     notes: list[str] = []
-    if cloud_labels == ["geometric"]:
-        out = [LabelledCloud(c.xyz, label_geometric(c), c.extra) for c in clouds]
-        return out, "geometric labeller", notes
+    if len(cloud_labels) == 1 and cloud_labels[0] in MODEL_FREE:
+        label = make_labeller(cloud_labels[0])
+        out = [LabelledCloud(c.xyz, label(c.xyz, c.extra.get("intensity")), c.extra)
+               for c in clouds]
+        return out, f"{cloud_labels[0]} labeller", notes
     if cloud_labels == ["semantickitti"]:
         paths = [semantickitti_label_path(p) for p in scan_paths]
         have = [i for i, lp in enumerate(paths) if lp.is_file()]
@@ -86,7 +84,8 @@ def label_scans(scan_paths: list[Path], clouds: list[LabelledCloud], cloud_label
                          "of its points), the rest dropped")
         return out, "SemanticKITTI label files", notes
     if any(c in LABEL_MODES for c in cloud_labels):
-        raise ValueError("--cloud-labels: geometric or semantickitti stand alone, not with files")
+        raise ValueError(f"--cloud-labels: {' or '.join(LABEL_MODES)} stand alone, not with "
+                         "files")
     if len(cloud_labels) != len(clouds):
         raise ValueError(f"--cloud-labels: {len(cloud_labels)} label file(s) for {len(clouds)} "
                          "scan(s) (one per scan, or geometric / semantickitti)")
