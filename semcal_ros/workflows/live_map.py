@@ -154,11 +154,15 @@ class LiveMap:
         self._worker.start()
 
     def close(self) -> None:
-        with self._wake:
-            self._stop = True
-            self._wake.notify()
+        """Stop the worker (after the pass it is in) and the prepare thread."""
+        self._wake_worker(stop=True)
         self._worker.join(timeout=5.0)
         self._prepare_pool.shutdown(wait=False)
+
+    def _wake_worker(self, stop: bool = False) -> None:
+        with self._wake:
+            self._stop = self._stop or stop
+            self._wake.notify()
 
     # --- arrivals: queue only -----------------------------------------------------------------
     def arrive(self, kind: str, stamp: float, item: Any) -> None:
