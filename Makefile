@@ -16,11 +16,12 @@ $(STAMP): requirements.txt requirements-build.txt setup.py .ci/setup-env.sh \
 demo: $(STAMP)
 	$(VENV)/bin/semcal demo
 
-# TEST_WORKERS=2 runs the suite in two processes (idle: 373 s instead of 563 s; each test's ROS
-# graph claims a domain id of its own, and --dist loadfile keeps a file's tests on one worker in
-# their order, as some check what earlier tests fed a module-scoped node). Not the default: in one
-# clean-clone run the two-host test's map did not complete within 150 s with both workers busy.
-TEST_WORKERS ?= 0
+# The suite runs in two processes (TEST_WORKERS=0: one). Each test's ROS graph claims a domain id
+# of its own; --dist loadfile keeps a file's tests on one worker. No test waits on how fast the
+# machine is: a goal that must still be running is held until the test cancels it, and streams a
+# test counts are subscribed reliably, so both workers busy only make the run longer.
+# SEMCAL_TEST_ORDER=reverse runs every file's tests in reverse order (tests stand alone).
+TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile test
 

@@ -64,7 +64,7 @@ def variant_map(name: str, out: Path, scene: Path) -> tuple[Path, list[np.ndarra
     projected from scan 0 as placed, for the "placed labels" variants)."""
     from semcal_ros.engine.cloud import LabelledCloud
     from semcal_ros.io import kitti, ply
-    from semcal_ros.io.kitti_scene import transfer_labels
+    from semcal_ros.workflows.kitti_scene import transfer_labels
     from semcal_ros.mapping import MapBuildParams, ScanInput, build_map
     from semcal_ros.mapping.deskew import DeskewParams
     from semcal_ros.mapping.placement import PlacementParams, place_scans
@@ -104,7 +104,7 @@ def placed_label_scene(scene: Path, scan0: LabelledCloud, folder: Path) -> Path:
     import shutil
 
     from semcal_ros.io import files, kitti
-    from semcal_ros.io.kitti_scene import projected_truth_labels
+    from semcal_ros.workflows.kitti_scene import projected_truth_labels
 
     folder.mkdir(parents=True, exist_ok=True)
     for name in ("calibrator.yaml", "camera_info.yaml", "ground_truth.yaml", "initial.yaml",

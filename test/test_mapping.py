@@ -146,7 +146,7 @@ def test_pose_stream_interpolates_and_refuses_uncovered_times():
 
 
 def test_scans_wait_for_their_poses_and_say_why():
-    from semcal_ros.mapping.time_matching import ScanPoseMatcher
+    from semcal_ros.mapping.time_matching import NoteKind, ScanPoseMatcher
 
     m = ScanPoseMatcher(queue_size=3, pose_tolerance=0.02, pose_topics="'/odom'")
     assert m.arrive("scan", 10.0, "s1", now=0.0) == []
@@ -159,16 +159,17 @@ def test_scans_wait_for_their_poses_and_say_why():
     for i in range(5):  # poses stop: the queue overflows, once noted (not per scan)
         notes = m.arrive("scan", 10.1 + 0.1 * i, f"s{i}", now=2.0 + 0.01 * i)
         if i == 3:
-            assert notes == ["scans dropped (queue full): no pose for 1.9 s (newest at 9.900 s, "
-                             "the newest scan at 10.400 s): 3 scans wait for their poses; is "
-                             "'/odom' publishing?"], notes
+            assert [(n.kind, n.text) for n in notes] == [(
+                NoteKind.QUEUE_FULL, "scans dropped (queue full): no pose for 1.9 s (newest at "
+                "9.900 s, the newest scan at 10.400 s): 3 scans wait for their poses; is "
+                "'/odom' publishing?")], notes
         else:
             assert notes == [], (i, notes)
     assert m.dropped_queue == 2 and [s for s, _ in m.scans] == pytest.approx([10.3, 10.4, 10.5])
 
 
 def test_time_going_back_strays_and_jumps():
-    from semcal_ros.mapping.time_matching import ScanPoseMatcher
+    from semcal_ros.mapping.time_matching import NoteKind, ScanPoseMatcher
 
     m = ScanPoseMatcher(time_jump=1.0, jump_confirm=3)
     for t in (100.0, 100.1):
@@ -177,8 +178,9 @@ def test_time_going_back_strays_and_jumps():
     assert m.arrive("scan", 95.0, "late", now=1.0) == []
     assert m.arrive("pose", 94.0, "late", now=1.0) == []
     notes = m.arrive("scan", 100.2, "s", now=1.0)
-    assert len(notes) == 2 and notes[0].startswith("scan at 95.000 s is 5.1 s older than the "
-                                                   "newest (100.100 s): dropped"), notes
+    assert [n.kind for n in notes] == [NoteKind.STRAY] * 2
+    assert notes[0].text.startswith("scan at 95.000 s is 5.1 s older than the newest "
+                                    "(100.100 s): dropped"), notes
     assert m.strays == 2 and m.reset is None
     # three in a row: a jump; the old pass's queue goes, the new pass's messages are queued
     for t in (10.0, 10.1, 10.2):
@@ -195,7 +197,7 @@ def test_time_going_back_strays_and_jumps():
     assert m.clear() == 0 and m.reset is None
     quiet = ScanPoseMatcher(reset_on_time_jump=False)
     quiet.arrive("scan", 100.0, "s", now=0.0)
-    assert quiet.arrive("scan", 50.0, "s", now=0.0)[0].endswith(
+    assert quiet.arrive("scan", 50.0, "s", now=0.0)[0].text.endswith(
         "dropped (reset_on_time_jump is false)")
 
 

@@ -15,7 +15,7 @@ import yaml
 
 from semcal_ros.cli import main
 from semcal_ros.io import files, kitti, ply
-from semcal_ros.io.kitti_scene import parse_scans
+from semcal_ros.workflows.kitti_scene import parse_scans
 from semcal_ros.engine.labels import INVALID, KITTI_ID
 from semcal_ros.engine.params import CalibrationParams
 

@@ -20,7 +20,8 @@ from semcal_ros.cli import main
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.io import files, kitti, ply
 from semcal_ros.io.calibration_files import write_extrinsic_yaml
-from semcal_ros.io.real_scene import mark_moved_vehicles, read_lidar_scan
+from semcal_ros.io.lidar_scans import read_lidar_scan
+from semcal_ros.workflows.scene_labels import mark_moved_vehicles
 from semcal_ros.engine.labels import (CITYSCAPES_ID, INVALID, KITTI_ID, MOVING_KITTI, VEHICLE_KITTI,
                                LabelMapping)
 from semcal_ros.engine.params import CalibrationParams

@@ -62,12 +62,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _params(args: argparse.Namespace, crop_center_default):
-    from semcal_ros.engine.config import apply_flat, load_node_params
+    from semcal_ros.engine.config import apply_flat, load_node_group
     from semcal_ros.mapping import MapBuildParams
 
     # the node's file: the builder's parameters are its ``mapping.*`` group
-    flat = load_node_params(args.config, "map_builder") if args.config else {}
-    flat = {k[len("mapping."):]: v for k, v in flat.items() if k.startswith("mapping.")}
+    flat = load_node_group(args.config, "map_builder", "mapping") if args.config else {}
     params = apply_flat(MapBuildParams(), flat)
     overrides: dict = {}
     if args.d_max is not None:

@@ -34,9 +34,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           "into the image (an ideal-label reference, not a segmenter)")
     p.add_argument("--model-config", type=Path, help="model config YAML of --model")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0: all cores)")
-    p.add_argument("--d-max", type=float, default=60.0,
-                   help="drop points farther than this from the sensor, m (default 60)")
-    p.add_argument("--voxel", type=float, default=0.1, help="map voxel size, m (default 0.1)")
+    p.add_argument("--d-max", type=float,
+                   help="drop points farther than this from the sensor, m (default: the map "
+                        "builder's mapping.d_max)")
+    p.add_argument("--voxel", type=float,
+                   help="map voxel size, m (default: the map builder's mapping.voxel)")
     p.add_argument("--label-distance", type=float, default=0.3,
                    help="max distance to a labelled point for scans without labels, m "
                         "(default 0.3)")
@@ -48,8 +50,11 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from semcal_ros.io import files, kitti
-    from semcal_ros.io.kitti_scene import parse_scans, projected_truth_labels, write_kitti_scene
+    from semcal_ros.cli.real_scene import map_defaults
+    from semcal_ros.workflows.kitti_scene import parse_scans, projected_truth_labels, write_kitti_scene
+    from semcal_ros.workflows.real_scene import MAP_DEFAULTS
 
+    map_defaults(args, MAP_DEFAULTS)
     scans = parse_scans(args.scans)
     if args.model is not None and args.model_config is None:
         raise ValueError("--model needs --model-config")

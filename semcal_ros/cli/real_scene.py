@@ -73,9 +73,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "count, moving ones go)")
     p.add_argument("--keep-sidewalk", action="store_true",
                    help="do not merge sidewalk into road in calibrator.yaml")
-    p.add_argument("--d-max", type=float, default=60.0,
-                   help="drop points farther than this from the sensor, m (default 60)")
-    p.add_argument("--voxel", type=float, default=0.1, help="map voxel size, m (default 0.1)")
+    p.add_argument("--d-max", type=float,
+                   help="drop points farther than this from the sensor, m (default: the map "
+                        "builder's mapping.d_max)")
+    p.add_argument("--voxel", type=float,
+                   help="map voxel size, m (default: the map builder's mapping.voxel)")
     p.add_argument("--label-distance", type=float, default=0.3,
                    help="semantickitti: max distance to a labelled point for scans without "
                         "labels, m (default 0.3)")
@@ -93,8 +95,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from semcal_ros.io.real_scene import RealSceneOptions, write_real_scene
+    from semcal_ros.workflows.real_scene import MAP_DEFAULTS, RealSceneOptions, write_real_scene
 
+    map_defaults(args, MAP_DEFAULTS)
     if args.model is not None and args.model_config is None:
         raise ValueError("--model needs --model-config")
     if args.model is None and args.model_config is not None:
@@ -123,6 +126,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def map_defaults(args: argparse.Namespace, defaults) -> None:
+    """``--d-max`` / ``--voxel`` not given: the map builder's (one source for both commands)."""
+    for name in ("d_max", "voxel"):
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(defaults, name))
+
+
 def write_truth_overlay(scene: Path, out: Path | None = None) -> Path:
     """The scene's map rendered at its ground truth over its image, with the scene's own
     calibrator.yaml label settings (merge, parked vehicles)."""
@@ -146,8 +156,10 @@ def gather_inputs(args: argparse.Namespace):
     """Read and check every input (image, camera, extrinsic, scans, poses, point labels)."""
     from semcal_ros.io import files, kitti
     from semcal_ros.io.calibration_files import read_calibration, read_extrinsic_yaml
-    from semcal_ros.io.real_scene import (RealSceneInputs, label_scans, read_lidar_scan,
-                                          scan_poses_in_map)
+    from semcal_ros.io.lidar_scans import read_lidar_scan, scan_poses_in_map
+    from semcal_ros.segmentation.labellers import MODEL_FREE
+    from semcal_ros.workflows.real_scene import RealSceneInputs
+    from semcal_ros.workflows.scene_labels import label_scans
 
     if args.calib and (args.camera_info or args.extrinsic):
         raise ValueError("--calib replaces --camera-info and --extrinsic: give one or the other")
@@ -189,16 +201,18 @@ def gather_inputs(args: argparse.Namespace):
     clouds = [read_lidar_scan(p) for p in args.scans]
     clouds, described, notes = label_scans(list(args.scans), clouds, list(args.cloud_labels),
                                            poses, args.label_distance)
+    labeller = args.cloud_labels[0] if list(args.cloud_labels) in ([m] for m in MODEL_FREE) \
+        else None
     return RealSceneInputs(rgb, camera, clouds, [str(p) for p in args.scans], poses,
                            [0.1 * i for i in range(len(clouds))], t_cam_lidar, initial,
-                           described, notes)
+                           described, notes, labeller=labeller)
 
 
 def label_image_source(args: argparse.Namespace, inputs):
     """``label_image(rgb) -> (labels, description)`` for the chosen source; a model is loaded
     (and checked) here, before any work."""
     from semcal_ros.io import files
-    from semcal_ros.io.real_scene import projected_truth_labels
+    from semcal_ros.workflows.scene_labels import projected_truth_labels
 
     if args.model is not None:
         from semcal_ros.segmentation.image import ImageSegmenter

@@ -12,6 +12,8 @@ import argparse
 import time
 from pathlib import Path
 
+from semcal_ros.segmentation.labellers import POINT_LABELLERS
+
 #: PLY vertex properties read as the intensity channel, first match wins.
 INTENSITY_FIELDS = ("intensity", "remission", "reflectance")
 
@@ -24,7 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "(RangeNet++/SalsaNext convention, configured by a model config YAML, see "
                     "config/models/); --method geometric needs no model (ground segmentation, "
                     "shape rules; docs/segmentation.md).")
-    parser.add_argument("--method", choices=("onnx", "geometric"), default="onnx",
+    parser.add_argument("--method", choices=tuple(POINT_LABELLERS), default="onnx",
                         help="onnx (needs --model, --model-config) or geometric (no model)")
     parser.add_argument("--model", type=Path, help="ONNX model file (--method onnx)")
     parser.add_argument("--model-config", type=Path,
@@ -65,29 +67,25 @@ def run(args: argparse.Namespace) -> int:
     from semcal_ros.engine.cloud import LabelledCloud
     from semcal_ros.io.ply import write_ply
     from semcal_ros.engine.labels import SEMANTIC_KITTI
-    from semcal_ros.segmentation.cloud import CloudSegmenter
     from semcal_ros.segmentation.decode import class_shares
+    from semcal_ros.segmentation.labellers import make_labeller
     from semcal_ros.segmentation.onnx_runner import RunnerParams
 
-    if args.method == "geometric":
-        from semcal_ros.segmentation.geometric import GeometricParams, label_scan
+    geometric = None
+    if not POINT_LABELLERS[args.method].needs_model:
+        from semcal_ros.segmentation.geometric import GeometricParams
 
-        params = GeometricParams()
+        geometric = GeometricParams()
         if args.config is not None:
-            from semcal_ros.engine.config import apply_flat, load_node_params
+            from semcal_ros.engine.config import apply_flat, load_node_group
 
-            flat = load_node_params(args.config, "cloud_segmenter")
-            params = apply_flat(params, {k.removeprefix("geometric."): v for k, v in flat.items()
-                                         if k.startswith("geometric.")})
-
-        def segment(xyz, intensity):
-            return label_scan(xyz, intensity, params)
-    else:
-        if args.model is None or args.model_config is None:
-            raise ValueError("--method onnx needs --model and --model-config "
-                             "(or use --method geometric)")
-        segment = CloudSegmenter.from_files(args.model, args.model_config,
-                                            RunnerParams(threads=args.threads)).segment
+            geometric = apply_flat(geometric, load_node_group(args.config, "cloud_segmenter",
+                                                              "geometric"))
+    elif args.model is None or args.model_config is None:
+        raise ValueError(f"--method {args.method} needs --model and --model-config "
+                         "(or use --method geometric)")
+    segment = make_labeller(args.method, args.model, args.model_config,
+                            RunnerParams(threads=args.threads), geometric)
     xyz, intensity = read_scan_file(args.scan)
     start = time.perf_counter()
     labels = segment(xyz, intensity)

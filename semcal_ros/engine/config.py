@@ -46,6 +46,14 @@ def load_node_params(path: str | Path, node_name: str) -> dict[str, Any]:
     return out
 
 
+def load_node_group(path: str | Path, node_name: str, group: str) -> dict[str, Any]:
+    """The flat parameters of ``node_name``'s ``group:`` (e.g. ``mapping``, ``geometric``) in a
+    ROS 2 parameter file, named as inside the group (the ``group.`` prefix taken off)."""
+    prefix = group + "."
+    return {k[len(prefix):]: v for k, v in load_node_params(path, node_name).items()
+            if k.startswith(prefix)}
+
+
 def dataclass_fields_flat(obj: Any, prefix: str = "") -> dict[str, Any]:
     """The flat (dotted) parameter names and values of a (nested) dataclass instance."""
     out: dict[str, Any] = {}

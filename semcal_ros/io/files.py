@@ -11,22 +11,7 @@ import yaml
 
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.pose import Pose
-
-
-def load_yaml(path: str | Path, what: str) -> dict:
-    """A YAML mapping from ``path``; FileNotFoundError / ValueError in one line (the parser's
-    message is several lines: its first says what is wrong)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "unreadable"
-        raise ValueError(f"{path}: invalid YAML ({first})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a YAML mapping")
-    return data
+from semcal_ros.readers import imread, load_yaml
 
 
 def read_camera_info(path: str | Path) -> CameraModel:
@@ -84,17 +69,6 @@ def pose_to_dict(pose: Pose, extra: dict[str, Any] | None = None,
 def write_pose(path: str | Path, pose: Pose, extra: dict[str, Any] | None = None) -> None:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(yaml.safe_dump(pose_to_dict(pose, extra), sort_keys=False))
-
-
-def imread(path: str | Path, flags: int = cv2.IMREAD_UNCHANGED, what: str = "image") -> np.ndarray:
-    """cv2.imread with the two failures it reports as None turned into clear errors."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} not found: {path}")
-    img = cv2.imread(str(path), flags)
-    if img is None:
-        raise ValueError(f"{path}: not a readable image")
-    return img
 
 
 def read_label_image(path: str | Path) -> np.ndarray:

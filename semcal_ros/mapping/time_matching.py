@@ -21,7 +21,26 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from enum import Enum
 from typing import Any
+
+
+class NoteKind(Enum):
+    """What a note of :class:`ScanPoseMatcher` is about (the node counts them by this)."""
+
+    STRAY = "stray"  # a message far behind the newest, not followed by enough others: dropped
+    QUEUE_FULL = "queue"  # scans dropped from the full queue while poses do not come
+
+
+@dataclass(frozen=True)
+class MatchNote:
+    """A note to log: its kind and the line to show."""
+
+    kind: NoteKind
+    text: str
+
+    def __str__(self) -> str:
+        return self.text
 
 
 @dataclass(frozen=True)
@@ -55,7 +74,7 @@ class ScanPoseMatcher:
         self.strays = self.dropped_queue = 0
 
     # --- arrivals ---------------------------------------------------------------------------
-    def arrive(self, kind: str, stamp: float, item: Any, now: float) -> list[str]:
+    def arrive(self, kind: str, stamp: float, item: Any, now: float) -> list[MatchNote]:
         """Queue a scan (``kind`` "scan") or pose ("pose") that arrived at monotonic ``now``, or
         hold it back while it is far behind the newest stamp. Returns notes to log (strays
         dropped, scans dropped because the queue is full and poses are missing)."""
@@ -76,7 +95,7 @@ class ScanPoseMatcher:
         self.newest = stamp if newest is None else max(newest, stamp)
         return notes + self._enqueue(kind, stamp, item, now)
 
-    def clock(self, stamp: float, now: float) -> list[str]:
+    def clock(self, stamp: float, now: float) -> list[MatchNote]:
         """``/clock``: going back by more than ``time_jump`` is a jump at once."""
         previous, self._last_clock = self._last_clock, stamp
         if previous is None or stamp >= previous - self.time_jump \
@@ -84,37 +103,38 @@ class ScanPoseMatcher:
             return []
         return self._jump(f"/clock went back from {previous:.3f} s to {stamp:.3f} s", stamp, now)
 
-    def _stray(self, kind: str, stamp: float, newest: float, why: str) -> str:
+    def _stray(self, kind: str, stamp: float, newest: float, why: str) -> MatchNote:
         self.strays += 1
-        return (f"{kind} at {stamp:.3f} s is {newest - stamp:.1f} s older than the newest "
-                f"({newest:.3f} s): dropped ({why})")
+        return MatchNote(NoteKind.STRAY, f"{kind} at {stamp:.3f} s is {newest - stamp:.1f} s "
+                                         f"older than the newest ({newest:.3f} s): dropped ({why})")
 
-    def _jump(self, reason: str, newest: float, now: float) -> list[str]:
+    def _jump(self, reason: str, newest: float, now: float) -> list[MatchNote]:
         previous = self.newest if self.newest is not None else newest
         self.scans.clear()
         self.poses.clear()
         self.reset = Reset(previous, newest, reason)
         self.newest = newest
         held, self._behind = self._behind, []
-        notes: list[str] = []
+        notes: list[MatchNote] = []
         for kind, stamp, item in held:
             notes += self._enqueue(kind, stamp, item, now)
         return notes
 
-    def _enqueue(self, kind: str, stamp: float, item: Any, now: float) -> list[str]:
+    def _enqueue(self, kind: str, stamp: float, item: Any, now: float) -> list[MatchNote]:
         if kind == "pose":
             self.poses.append((stamp, item))
             self.newest_pose, self._pose_arrival = stamp, now
             return []
         self.scans.append((stamp, item))
-        notes = []
+        notes: list[MatchNote] = []
         while len(self.scans) > self.queue_size:
             self.scans.popleft()
             self.dropped_queue += 1
             waiting = self.waiting_for_poses(now)
             if waiting and now - self._queue_noted > 5.0:  # not once per scan
                 self._queue_noted = now
-                notes.append(f"scans dropped (queue full): {waiting}")
+                notes.append(MatchNote(NoteKind.QUEUE_FULL,
+                                       f"scans dropped (queue full): {waiting}"))
         return notes
 
     # --- the builder's side -----------------------------------------------------------------
@@ -160,4 +180,4 @@ class ScanPoseMatcher:
         return dropped
 
 
-__all__ = ["Reset", "ScanPoseMatcher"]
+__all__ = ["MatchNote", "NoteKind", "Reset", "ScanPoseMatcher"]

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from semcal_ros.io.files import imread
+from semcal_ros.readers import imread
 from semcal_ros.engine.labels import INVALID, colorize
 from semcal_ros.segmentation.decode import labels_from_class_map, labels_from_logits
 from semcal_ros.segmentation.model_config import ImageModelConfig, load_model_config

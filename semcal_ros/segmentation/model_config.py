@@ -22,7 +22,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from semcal_ros.io.files import load_yaml
+from semcal_ros.readers import load_yaml
 from semcal_ros.engine.labels import CITYSCAPES, CITYSCAPES_ID, INVALID, KITTI_ID, SEMANTIC_KITTI
 
 #: Output kinds a model may have: per-class scores (N x C x H x W) or an argmax already taken

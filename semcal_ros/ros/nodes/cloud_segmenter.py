@@ -23,10 +23,12 @@ from sensor_msgs.msg import PointCloud2
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros.runtime import run_node
 from semcal_ros.ros.segmenter_node import SegmenterNode
-from semcal_ros.segmentation.geometric import GeometricParams, label_scan
+from semcal_ros.segmentation.geometric import GeometricParams
+from semcal_ros.segmentation.labellers import POINT_LABELLERS, check_labeller, make_labeller
 from semcal_ros.segmentation.onnx_runner import RunnerParams
 
-METHODS = ("onnx", "geometric")
+#: The ``method`` values: the registered point labellers.
+METHODS = tuple(POINT_LABELLERS)
 
 
 @dataclass
@@ -41,19 +43,14 @@ class CloudSegmenterParams:
     geometric: GeometricParams = field(default_factory=GeometricParams)
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"parameter 'method': '{self.method}' is not one of "
-                             f"{', '.join(METHODS)}")
+        check_labeller(self.method, "parameter 'method':")
 
 
-class _GeometricLabeller:
-    """The geometric labeller behind the same ``segment(xyz, intensity)`` call as the model."""
+class _Labeller:
+    """A registered labeller behind the ``segment(xyz, intensity)`` call the node makes."""
 
-    def __init__(self, params: GeometricParams) -> None:
-        self.params = params
-
-    def segment(self, xyz: np.ndarray, intensity: np.ndarray | None) -> np.ndarray:
-        return label_scan(xyz, intensity, self.params)
+    def __init__(self, segment: Any) -> None:
+        self.segment = segment
 
 
 def add_label_field(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -75,16 +72,12 @@ class CloudSegmenterNode(SegmenterNode):
         super().__init__("cloud_segmenter", CloudSegmenterParams())
 
     def require(self, opts: CloudSegmenterParams) -> None:
-        if opts.method == "onnx":
+        if POINT_LABELLERS[opts.method].needs_model:
             super().require(opts)
 
     def load(self, opts: CloudSegmenterParams) -> Any:
-        from semcal_ros.segmentation.cloud import CloudSegmenter
-
-        if opts.method == "geometric":
-            return _GeometricLabeller(opts.geometric)
-
-        return CloudSegmenter.from_files(opts.model, opts.model_config, opts.runner)
+        return _Labeller(make_labeller(opts.method, opts.model, opts.model_config, opts.runner,
+                                       opts.geometric))
 
     def segment_message(self, msg: PointCloud2) -> PointCloud2:
         points = conv.pointcloud2_to_array(msg)

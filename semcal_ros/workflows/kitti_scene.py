@@ -1,7 +1,7 @@
 """A KITTI odometry frame as a scene folder (docs/CONTRACTS.md): the paper's real KITTI case.
 
 ``semcal kitti-scene`` calls :func:`write_kitti_scene`, a thin caller of the generic
-:func:`semcal_ros.io.real_scene.write_real_scene` (``semcal real-scene``): it finds the frame's
+:func:`semcal_ros.workflows.real_scene.write_real_scene` (``semcal real-scene``): it finds the frame's
 files in the sequence folder, and writes the paper's KITTI settings instead of derived ones. The
 map frame is the lidar frame of the chosen frame's scan; every scan is placed there with the
 ground-truth poses (``poses.txt`` through ``Tr``), limited to ``d_max``, voxel-downsampled with
@@ -25,9 +25,11 @@ from typing import Callable
 import numpy as np
 
 from semcal_ros.io import files, kitti
-from semcal_ros.io.real_scene import (RealSceneInputs, RealSceneOptions, calibrator_yaml,
-                                      label_scans, projected_truth_labels, read_lidar_scan,
-                                      transfer_labels, write_real_scene)
+from semcal_ros.io.lidar_scans import read_lidar_scan
+from semcal_ros.workflows.real_scene import (MAP_DEFAULTS, RealSceneInputs, RealSceneOptions,
+                                             calibrator_yaml, write_real_scene)
+from semcal_ros.workflows.scene_labels import (label_scans, projected_truth_labels,
+                                               transfer_labels)
 
 __all__ = ["KITTI_ENGINE_SETTINGS", "IMAGE_NAME", "parse_scans", "KittiSceneReport",
            "projected_truth_labels", "transfer_labels", "write_kitti_scene", "kitti_calibrator_yaml"]
@@ -74,7 +76,8 @@ class KittiSceneReport:
 
 def write_kitti_scene(root: str | Path, frame: int, scans: list[int], out: str | Path,
                       label_image: Callable[[np.ndarray, str], tuple[np.ndarray, str]],
-                      d_max: float = 60.0, voxel: float = 0.1, label_distance: float = 0.3,
+                      d_max: float = MAP_DEFAULTS.d_max, voxel: float = MAP_DEFAULTS.voxel,
+                      label_distance: float = 0.3,
                       seed: int = 0, log: Callable[[str], None] = print) -> KittiSceneReport:
     """Write the scene folder ``out`` for ``frame`` of the KITTI sequence ``root``.
 
