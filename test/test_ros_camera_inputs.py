@@ -63,10 +63,13 @@ def test_keeps_the_newest_good_messages_and_names_each_refusal_once():
     snap = cam.snapshot()
     assert snap.camera is not None and snap.camera.k[0, 0] == 50.0 and snap.labels.shape == (48, 64)
     assert cam.values()["input_error.CameraInfo"] == "K contains NaN or infinite values"
-    # a good message clears its refusal; a label image of another size is a problem
-    assert cam.on_labels(_labels(shape=(40, 64)))
+    # a good message clears its refusal; a label image of another size is refused on arrival
+    assert cam.on_labels(_labels())
     assert "label image" not in cam.refusals()
-    assert cam.problems() == ["label image is 64x40 but CameraInfo says 64x48"]
+    assert not cam.on_labels(_labels(shape=(40, 64)))
+    assert cam.refusals()["label image"] == ("the label image is 64x40 but CameraInfo says "
+                                             "64x48; keeping the one held")
+    assert cam.problems() == [] and cam.snapshot().labels.shape == (48, 64)
     assert cam.on_image(rgb) and cam.snapshot().rgb.shape == (48, 64, 3)
 
 

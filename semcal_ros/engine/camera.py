@@ -23,6 +23,7 @@ What is drawn where (docs/lenses.md):
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, replace
 
@@ -37,6 +38,41 @@ ALIASES = {"": "plumb_bob", "none": "plumb_bob"}
 SUPPORTED_MODELS = tuple(COEFFICIENTS) + tuple(ALIASES)
 #: integer ids the renderer branches on (View.model)
 MODEL_ID = {"plumb_bob": 0, "rational_polynomial": 1, "equidistant": 2}
+#: the coefficients' names, for messages
+COEFFICIENT_NAMES = {"plumb_bob": "k1 k2 p1 p2 k3", "rational_polynomial": "k1 k2 p1 p2 k3 k4 k5 k6",
+                     "equidistant": "k1 k2 k3 k4"}
+
+_log = logging.getLogger(__name__)
+_said: set[str] = set()
+
+
+def coefficient_check(model: str, d: np.ndarray) -> tuple[str, str]:
+    """(problem, note) of the distortion coefficients ``d`` given for ``model`` (a supported
+    one): each model takes exactly its count (plumb_bob 5, rational_polynomial 8, equidistant
+    4). Fewer is a problem (padding them with zeros made a 2-coefficient fisheye silently wrong,
+    3 m off on a probe scene); more is a problem if one beyond the count is non-zero, else a note
+    (CameraInfo writers pad with zeros). None at all means no distortion (the CameraInfo of a
+    rectified or simulated camera)."""
+    name = ALIASES.get(model, model)
+    n, given = COEFFICIENTS[name], np.asarray(d, dtype=float).ravel()
+    if given.size == 0 or given.size == n:
+        return "", ""
+    head = f"{model or name} takes {n} distortion coefficients ({COEFFICIENT_NAMES[name]})"
+    if given.size < n:
+        return f"{head}, got {given.size}", ""
+    if np.any(given[n:] != 0):
+        hint = " (8 coefficients: use rational_polynomial)" if name == "plumb_bob" else ""
+        return (f"{head}, got {given.size} with non-zero ones beyond the {n}th{hint}"), ""
+    extra = given.size - n
+    return "", f"{head}: the {extra} zero{'s' * (extra > 1)} beyond them ignored"
+
+
+def say_once(note: str) -> None:
+    """A note about an input that is accepted (logged once per process and text: a CameraInfo
+    arrives many times a second)."""
+    if note not in _said:
+        _said.add(note)
+        _log.warning(note)
 
 
 def distort(x, y, k1, k2, p1, p2, k3):
@@ -100,6 +136,10 @@ def equidistant_many(xc, yc, zc, k):
 
 @dataclass(frozen=True)
 class CameraModel:
+    """A camera as the renderer projects with it. Every door builds one (camera_info YAML,
+    CameraInfo messages, calibration files), so its checks here reach them all: a supported
+    model, its coefficient count (:func:`coefficient_check`), a size, positive focal lengths."""
+
     width: int
     height: int
     k: np.ndarray  # 3x3 intrinsic matrix
@@ -115,10 +155,11 @@ class CameraModel:
                              f"(supported: {', '.join(COEFFICIENTS)})")
         n = COEFFICIENTS[model]
         given = np.asarray(self.d, dtype=float).ravel()
-        if given.size > n and np.any(given[n:] != 0):
-            hint = " (8 coefficients: use rational_polynomial)" if model == "plumb_bob" else ""
-            raise ValueError(f"{model} takes {n} distortion coefficients, got {given.size} with "
-                             f"non-zero ones beyond the {n}th{hint}")
+        problem, note = coefficient_check(self.model, given)
+        if problem:
+            raise ValueError(problem)
+        if note:
+            say_once(note)
         d = np.zeros(n)
         d[: min(n, given.size)] = given[:n]
         k = np.asarray(self.k, dtype=float).reshape(3, 3)
@@ -207,7 +248,7 @@ class CameraModel:
             width, height = int(data["image_width"]), int(data["image_height"])
             k = np.asarray(data["camera_matrix"]["data"], dtype=float)
             model = str(data.get("distortion_model", "plumb_bob"))
-            dist = data.get("distortion_coefficients", {"data": [0.0] * 5})["data"]
+            dist = data.get("distortion_coefficients", {"data": []})["data"]
         except (KeyError, TypeError) as exc:
             raise ValueError(f"camera_info is missing field {exc}") from None
         if model not in SUPPORTED_MODELS:

@@ -14,6 +14,32 @@ from semcal_ros.engine.pose import Pose
 from semcal_ros.readers import imread, load_yaml
 
 
+#: A scan or map file with fewer distinct finite points than this is refused: it cannot be a
+#: scan (a file of 5000 copies of one point was once labelled "road 100 %" without a word).
+MIN_DISTINCT_POINTS = 10
+
+
+def distinct_points_problem(xyz: np.ndarray, minimum: int = MIN_DISTINCT_POINTS) -> str:
+    """Why the cloud ``xyz`` (N, 3) is no scan ("" when it has ``minimum`` distinct finite
+    points or no finite point at all: an empty or all-NaN cloud is its reader's caller's to
+    refuse, in its own words). Cheap on millions of points: the first few thousand usually
+    settle it, else at most ``minimum`` passes over the cloud."""
+    xyz = np.asarray(xyz)
+    finite = xyz[np.all(np.isfinite(xyz), axis=1)]
+    if len(finite) == 0 or len(np.unique(finite[:4096], axis=0)) >= minimum:
+        return ""
+    remaining = np.ones(len(finite), bool)
+    distinct = 0
+    while distinct < minimum and remaining.any():
+        point = finite[int(np.argmax(remaining))]
+        remaining &= np.any(finite != point, axis=1)
+        distinct += 1
+    if distinct >= minimum:
+        return ""
+    return (f"only {distinct} distinct point{'s' * (distinct > 1)} among {len(finite)} "
+            f"(fewer than {minimum}): not a scan")
+
+
 def read_camera_info(path: str | Path) -> CameraModel:
     data = load_yaml(path, "camera_info")
     try:

@@ -67,9 +67,33 @@ def _decode(data: bytes, flags: int, codec: str) -> np.ndarray:
     return img
 
 
+def _decode_jpeg_rgb(data: bytes) -> np.ndarray:
+    """(H, W, 3) RGB of a JPEG, or :class:`UndecodableImage` also when libjpeg only warned.
+
+    OpenCV decodes a JPEG with damaged entropy-coded data ("Corrupt JPEG data: 39 extraneous
+    bytes before marker 0xd9", "premature end of data segment") into a picture with smeared or
+    grey blocks and says so only on stderr; simplejpeg runs the same libjpeg-turbo with its
+    warnings turned into errors (``strict``), and decodes good data to the same pixels as OpenCV
+    (checked in test_safety_streams.py)."""
+    import simplejpeg
+
+    raw = bytes(data)
+    try:
+        return simplejpeg.decode_jpeg(raw, colorspace="RGB", strict=True)
+    except ValueError as exc:
+        _decode(raw, cv2.IMREAD_COLOR, "jpeg")  # no picture at all: that error, in its words
+        why = " ".join(str(exc).split()) or "libjpeg warned"
+        raise UndecodableImage(f"{len(raw)} bytes of corrupt JPEG ({why})") from None
+
+
 def decode_rgb(fmt: str, data: bytes) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of a compressed camera image (colour or grey JPEG / PNG)."""
+    """(H, W, 3) uint8 RGB of a compressed camera image (colour or grey JPEG / PNG); a JPEG that
+    libjpeg decodes only with a warning is refused (:func:`_decode_jpeg_rgb`)."""
     codec = codec_of(fmt, data)
+    if codec == "jpeg":
+        if len(data) == 0:
+            raise UndecodableImage("no JPEG data (0 bytes)")
+        return _decode_jpeg_rgb(data)
     bgr = _decode(data, cv2.IMREAD_COLOR, codec)  # OpenCV's colour order: BGR
     if bgr.dtype != np.uint8:
         raise ValueError(f"compressed camera image is {bgr.dtype}, expected 8 bit")

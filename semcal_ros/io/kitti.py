@@ -36,18 +36,30 @@ def _require_file(path: str | Path, what: str) -> Path:
 
 
 def read_velodyne(path: str | Path) -> np.ndarray:
-    """(N, 4) float32 x, y, z, reflectance of one ``.bin`` scan."""
+    """(N, 4) float32 x, y, z, reflectance of one ``.bin`` scan. The file's size must be a
+    whole number of 16-byte points (numpy alone reads a damaged 16 N + 3 bytes as N points),
+    and the scan must hold a few distinct points (:func:`~semcal_ros.io.files.distinct_points_problem`)."""
+    from semcal_ros.io.files import distinct_points_problem
+
     path = _require_file(path, "velodyne scan")
-    raw = np.fromfile(path, dtype="<f4")
-    if raw.size % 4:
-        raise ValueError(f"{path}: size {raw.size * 4} bytes is not a multiple of 16 "
+    size = path.stat().st_size
+    if size % 16:
+        raise ValueError(f"{path}: size {size} bytes is not a multiple of 16 "
                          "(expected float32 x, y, z, reflectance per point)")
-    return raw.reshape(-1, 4)
+    raw = np.fromfile(path, dtype="<f4").reshape(-1, 4)
+    problem = distinct_points_problem(raw[:, :3])
+    if problem:
+        raise ValueError(f"{path}: {problem}")
+    return raw
 
 
 def read_labels(path: str | Path) -> np.ndarray:
     """(N,) uint16 SemanticKITTI class ids of one ``.label`` file (instance ids masked off)."""
     path = _require_file(path, "label file")
+    size = path.stat().st_size
+    if size % 4:
+        raise ValueError(f"{path}: size {size} bytes is not a multiple of 4 "
+                         "(expected one uint32 label per point)")
     raw = np.fromfile(path, dtype="<u4")
     return (raw & 0xFFFF).astype(np.uint16)
 

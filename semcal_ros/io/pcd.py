@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.io.files import distinct_points_problem
 
 #: PCD fields read as the intensity channel, first match wins (vendors name it differently).
 INTENSITY_FIELDS = ("intensity", "reflectance", "remission", "i")
@@ -34,6 +35,9 @@ def read_pcd(path: str | Path) -> LabelledCloud:
     if "positions" not in cloud.point or len(cloud.point.positions) == 0:
         raise ValueError(f"{path}: PCD file has no x, y, z points")
     xyz = cloud.point.positions.numpy().astype(np.float64)
+    problem = distinct_points_problem(xyz)
+    if problem:
+        raise ValueError(f"{path}: {problem}")
     extra: dict[str, np.ndarray] = {}
     label = None
     for name in cloud.point:

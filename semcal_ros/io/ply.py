@@ -12,10 +12,12 @@ import numpy as np
 from plyfile import PlyData, PlyElement, PlyParseError
 
 from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.io.files import distinct_points_problem
 
 
 def read_ply(path: str | Path, require_label: bool = True) -> LabelledCloud:
-    """Read a PLY point cloud; other vertex properties end up in ``extra``."""
+    """Read a PLY point cloud; other vertex properties end up in ``extra``. A cloud of a few
+    distinct points (copies of one) is refused: it is no scan or map."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"map file not found: {path}")
@@ -33,6 +35,9 @@ def read_ply(path: str | Path, require_label: bool = True) -> LabelledCloud:
     if require_label and "label" not in names:
         raise ValueError(f"{path}: PLY vertex has no 'label' property (expected ushort label)")
     xyz = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1).astype(np.float64)
+    problem = distinct_points_problem(xyz)
+    if problem:
+        raise ValueError(f"{path}: {problem}")
     label = vertex["label"].astype(np.uint16) if "label" in names else None
     extra = {n: np.asarray(vertex[n]) for n in names if n not in ("x", "y", "z", "label")}
     return LabelledCloud(xyz, label, extra)

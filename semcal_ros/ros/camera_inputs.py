@@ -18,13 +18,18 @@ use a namespace.
 ``image_transport`` / ``labels_transport`` ``compressed`` subscribe
 ``sensor_msgs/CompressedImage`` on ``<resolved topic>/compressed`` instead (image_transport's
 naming): camera images as JPEG or PNG, label images as PNG only (JPEG changes class ids and is
-refused). Compressed data that does not decode is dropped with a WARN naming the topic.
+refused). Compressed data that does not decode, or a JPEG that libjpeg decodes only with its
+"Corrupt JPEG data" warning, is dropped with a WARN naming the topic (at most one every
+``WARN_PERIOD`` s, counting the frames dropped in between). A label or camera image whose size
+differs from the held CameraInfo's is refused on arrival, and the one held is kept.
 """
 
 from __future__ import annotations
 
+import math
 import re
 import threading
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -39,6 +44,10 @@ from semcal_ros.ros import conversions as conv
 LABELS, CAMERA_INFO, IMAGE = "label image", "CameraInfo", "camera image"
 
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+#: s between WARNs about undecodable compressed data of one kind (a damaged stream would
+#: otherwise log every frame: each damaged frame has its own byte count in its reason).
+WARN_PERIOD = 10.0
 
 
 @dataclass(frozen=True)
@@ -125,6 +134,8 @@ class CameraInputs:
         self._camera: CameraModel | None = None
         self._rgb: np.ndarray | None = None
         self._refusals: dict[str, str] = {}
+        self._dropped: dict[str, tuple[float, int]] = {}  # kind -> (last WARN, dropped since)
+        self._clock = time.monotonic
         self.received = {LABELS: 0, CAMERA_INFO: 0, IMAGE: 0}
 
     @property
@@ -132,9 +143,26 @@ class CameraInputs:
         return self.topics.name
 
     # --- messages ---------------------------------------------------------------------------
+    def _sized(self, what: str, convert: Callable[[Any], np.ndarray]
+               ) -> Callable[[Any], np.ndarray]:
+        """``convert``, then a check that the image has the held CameraInfo's size: a label
+        image of another size would replace the good one held (and the next goal abort), a
+        camera image of another size would silently not be drawn under the overlay."""
+        def checked(msg: Any) -> np.ndarray:
+            image = convert(msg)
+            with self._lock:
+                camera = self._camera
+            h, w = image.shape[:2]
+            if camera is not None and (w, h) != (camera.width, camera.height):
+                raise ValueError(f"the {what} is {w}x{h} but CameraInfo says "
+                                 f"{camera.width}x{camera.height}; keeping the one held")
+            return image
+        return checked
+
     def on_labels(self, msg: Any) -> bool:
-        """Keep a label image (mono8, or PNG CompressedImage); False when refused."""
-        labels = self._convert(LABELS, compressed.to_labels, msg)
+        """Keep a label image (mono8, or PNG CompressedImage) of the CameraInfo's size (any
+        size before a CameraInfo); False when refused."""
+        labels = self._convert(LABELS, self._sized(LABELS, compressed.to_labels), msg)
         if labels is None:
             return False
         with self._lock:
@@ -151,8 +179,9 @@ class CameraInputs:
         return True
 
     def on_image(self, msg: Any) -> bool:
-        """Keep a camera image (rgb8 / bgr8 / JPEG / PNG, kept as RGB); False when refused."""
-        rgb = self._convert(IMAGE, compressed.to_rgb, msg)
+        """Keep a camera image (rgb8 / bgr8 / JPEG / PNG, kept as RGB) of the CameraInfo's size;
+        False when refused."""
+        rgb = self._convert(IMAGE, self._sized(IMAGE, compressed.to_rgb), msg)
         if rgb is None:
             return False
         with self._lock:
@@ -164,12 +193,20 @@ class CameraInputs:
         try:
             value = convert(msg)
         except ValueError as exc:
+            now = self._clock()
             with self._lock:
                 self.received[what] += 1
                 new = self._refusals.get(what) != str(exc)
                 self._refusals[what] = str(exc)
-            if new and isinstance(exc, UndecodableImage):
-                self._warn(f"dropping a {what} on {self._resolve(self._topic[what])}: {exc}")
+                if isinstance(exc, UndecodableImage):
+                    last, dropped = self._dropped.get(what, (-math.inf, 0))
+                    due = now - last >= WARN_PERIOD
+                    self._dropped[what] = (now, 0) if due else (last, dropped + 1)
+            if isinstance(exc, UndecodableImage):
+                if due:  # throttled: damaged frames of a stream each have their own reason
+                    since = f" ({dropped} more dropped since the last warning)" if dropped else ""
+                    self._warn(f"dropping a {what} on {self._resolve(self._topic[what])}: "
+                               f"{exc}{since}")
             elif new:
                 where = f" ({self.topics.name})" if self.topics.name else ""
                 self._log(f"ignoring {what}{where}: {exc}")

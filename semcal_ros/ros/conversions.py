@@ -19,7 +19,8 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from semcal_ros.engine import validation
-from semcal_ros.engine.camera import ALIASES, COEFFICIENTS, SUPPORTED_MODELS, CameraModel
+from semcal_ros.engine.camera import (COEFFICIENTS, SUPPORTED_MODELS, CameraModel,
+                                      coefficient_check)
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.pose import Pose
 
@@ -224,10 +225,9 @@ def camera_info_to_model(msg: CameraInfo) -> CameraModel:
         problems.append(f"unsupported distortion model '{model}' (supported: "
                         f"{', '.join(COEFFICIENTS)})")
     else:
-        n = COEFFICIENTS[ALIASES.get(model, model)]
-        if np.any(d[n:] != 0):
-            problems.append(f"{model or 'plumb_bob'} takes {n} distortion coefficients, "
-                            f"got {d.size}")
+        problem, _note = coefficient_check(model, d)  # the note is said by CameraModel
+        if problem:
+            problems.append(problem)
     if msg.binning_x > 1 or msg.binning_y > 1:
         problems.append(f"binning {msg.binning_x}x{msg.binning_y} is not supported")
     roi = msg.roi
@@ -236,7 +236,7 @@ def camera_info_to_model(msg: CameraInfo) -> CameraModel:
     k = np.asarray(msg.k, dtype=float).reshape(3, 3)
     problems += validation.camera_problems(msg.width, msg.height, k, d)
     validation.check(problems)
-    return CameraModel(int(msg.width), int(msg.height), k, d if d.size else np.zeros(5),
+    return CameraModel(int(msg.width), int(msg.height), k, d,
                        msg.header.frame_id or "camera_optical", model or "plumb_bob")
 
 

@@ -59,9 +59,10 @@ class GoalAnswers:
                            seconds=seconds)
 
     def ended(self, handle: Any, job: EngineJob, camera: str, camera_frame: str,
-              transform: Any = None) -> Calibrate.Result:
+              transform: Any = None, withheld: str = "") -> Calibrate.Result:
         """The answer to a job that ran: its error by type, or its
-        :class:`~semcal_ros.engine.calibration.Calibration` with the ``transform`` published."""
+        :class:`~semcal_ros.engine.calibration.Calibration` with its ``transform`` (published,
+        or ``withheld`` says why not: the message ends with it)."""
         exc = job.error
         if isinstance(exc, Cancelled):
             if handle.is_cancel_requested:
@@ -81,8 +82,8 @@ class GoalAnswers:
         q = result.quality
         if q is not None:
             self.node.get_logger().info(f"quality of '{camera_frame}': {q.summary()}")
-        return self.finish(handle, "succeed", success_message(result, camera_frame),
-                           transform=transform, camera=camera, quality=q,
+        message = success_message(result, camera_frame) + (f"; {withheld}" if withheld else "")
+        return self.finish(handle, "succeed", message, transform=transform, camera=camera, quality=q,
                            **result_fields(result))
 
 

@@ -21,7 +21,9 @@ The reference (the first check after a calibration, if it found no drift) and th
 message and the diagnostics are :mod:`semcal_ros.ros.monitor_status`'s. The node is wiring.
 
 With ``auto_recalibrate`` an ERROR sends one goal to the ``calibrate`` action (from the estimated
-pose); the monitor never replaces a transform itself. Bad input is refused in one line and the
+pose); the monitor never replaces a transform itself: the calibrator publishes the result only if
+its verdict is one of its ``publish_verdicts`` (a failed one never, by default), and the monitor
+logs how the goal ended. Bad input is refused in one line and the
 node keeps what it held.
 """
 
@@ -221,9 +223,38 @@ class CalibrationMonitorNode(Node):
         cam.recalibrating = True
         start = report.estimated or report.calibrated
         goal = make_goal(start, self.maps.frame, cam.inputs.name or frame_id)
-        self.client.send_goal_async(goal)
+        sent = self.client.send_goal_async(goal)
+        sent.add_done_callback(lambda future: self._goal_sent(cam, future))
         self.get_logger().warning(f"auto_recalibrate: goal sent for {cam.inputs.topics.label} "
-                                  "(the calibrator publishes the new transform)")
+                                  "(the calibrator publishes the new transform if its verdict "
+                                  "is one it publishes)")
+
+    def _goal_sent(self, cam: _Camera, future: Any) -> None:
+        handle = future.result()
+        if handle is None or not handle.accepted:
+            self.get_logger().error(f"auto_recalibrate: the goal for {cam.inputs.topics.label} "
+                                    "was rejected")
+            return
+        handle.get_result_async().add_done_callback(lambda f: self._goal_done(cam, f))
+
+    def _goal_done(self, cam: _Camera, future: Any) -> None:
+        """Say how the recalibration ended. The calibrator decides whether its result replaces
+        the transform (its ``publish_verdicts``: a failed result never does); until a new
+        calibration arrives no further goal is sent for this camera (a failing recalibration
+        would otherwise be repeated every period)."""
+        answer = future.result()
+        result = answer.result if answer is not None else None
+        label = cam.inputs.topics.label
+        if result is None or not result.success:
+            why = result.message if result is not None else "no result"
+            self.get_logger().error(f"auto_recalibrate: {label}: the goal failed ({why}); the "
+                                    "calibration stays, no new goal until a new calibration "
+                                    "arrives")
+        elif result.verdict == "failed" or "not published" in result.message:
+            self.get_logger().warning(f"auto_recalibrate: {label}: the result's verdict is "
+                                      f"{result.verdict or 'none'}: {result.message}")
+        else:
+            self.get_logger().info(f"auto_recalibrate: {label}: {result.message}")
 
     # --- diagnostics --------------------------------------------------------------------------
     def _camera_reports(self) -> dict[str, Report]:

@@ -18,9 +18,11 @@ cannot be used are refused with the reason logged and in the diagnostics, and wh
 is kept.
 
 The result goes to the caller (with the quality report: verdict, agreement, coverage, per-axis
-uncertainty), to ``calibration/transform`` (TransformStamped, transient local), to ``/tf_static``
-(one TFMessage holding the transforms of every camera calibrated so far, as tf2's static
-broadcaster does) and, as a picture of the map rendered at the result over the camera image with
+uncertainty) and, when its verdict is one of ``publish_verdicts`` (default good and
+inconclusive: a failed result never replaces the transform held), to
+``calibration/transform`` (TransformStamped, transient local) and to ``/tf_static`` (one
+TFMessage holding the transforms of every camera calibrated so far, as tf2's static broadcaster
+does); every result, as a picture of the map rendered at the result over the camera image with
 the verdict drawn on it, to ``calibration/overlay``. /diagnostics carries the node's status and,
 with named cameras, one status per camera (``calibrator/<name>``): its inputs, its goal and the
 verdict of its last result (WARN inconclusive, ERROR failed).
@@ -54,6 +56,7 @@ from semcal_ros.engine.calibration import Calibration, calibrate_and_draw
 from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.problem import mapping_for
+from semcal_ros.engine.quality import VERDICTS
 from semcal_ros.errors import InputError
 from semcal_ros.ros import conversions as conv
 from semcal_ros.ros import qos
@@ -67,7 +70,7 @@ from semcal_ros.ros.goal_answers import GoalAnswers
 from semcal_ros.ros.label_window import WindowedCameraInputs, window_labels
 from semcal_ros.ros.map_intake import MapIntake
 from semcal_ros.ros.params import declare_and_read
-from semcal_ros.ros.result_publisher import ResultPublisher
+from semcal_ros.ros.result_publisher import DEFAULT_PUBLISH_VERDICTS, ResultPublisher
 from semcal_ros.ros.runtime import run_node
 
 #: Executor threads besides one per camera (a goal waiting for the engine holds one thread).
@@ -86,6 +89,9 @@ class CalibratorNodeParams:
     feedback_period: float = 0.5  # s between feedback messages while a goal runs
     diagnostics_period: float = 1.0  # s between /diagnostics messages (0: off)
     publish_tf_static: bool = True  # also publish the result on /tf_static
+    # verdicts whose result is published (calibration/transform, /tf_static); a failed one is
+    # not by default: the transform held before stays, the action result carries it
+    publish_verdicts: tuple[str, ...] = DEFAULT_PUBLISH_VERDICTS
     overlay_file: str = ""  # also write the overlay picture here (PNG) after each success
     image_transport: str = "raw"  # camera image: raw, or compressed (<image_raw>/compressed)
     labels_transport: str = "raw"  # label image: raw, or compressed (PNG only; JPEG refused)
@@ -100,6 +106,10 @@ class CalibratorNodeParams:
             raise ValueError("feedback_period must be in (0, 1] s (feedback at least once a "
                              f"second), got {self.feedback_period}")
         camera_topics(self.cameras)  # raises naming a bad or repeated name
+        unknown = [v for v in self.publish_verdicts if v not in VERDICTS]
+        if unknown:
+            raise ValueError(f"parameter 'publish_verdicts': {', '.join(map(repr, unknown))} "
+                             f"is not a verdict (choose from {', '.join(VERDICTS)})")
 
 
 class CalibratorNode(Node):
@@ -132,7 +142,7 @@ class CalibratorNode(Node):
         for camera in self.cameras.values():
             camera.subscribe(self, inputs, overrides)
         self.results = ResultPublisher(self, self.opts.publish_tf_static, self.opts.overlay_file,
-                                       overrides)
+                                       overrides, self.opts.publish_verdicts)
         self.action = ActionServer(
             self, Calibrate, "calibrate", execute_callback=self._execute,
             goal_callback=lambda _: GoalResponse.ACCEPT,
@@ -200,8 +210,10 @@ class CalibratorNode(Node):
                 return self.answers.cancelled(handle, job, state)
             if outcome == "shutdown":
                 return self.answers.finish(handle, "abort", "the calibrator is shutting down")
-            transform = self._publish(job.result, request) if job.error is None else None
-            return self.answers.ended(handle, job, camera.name, request.camera_frame, transform)
+            transform, withheld = self._publish(job.result, request) if job.error is None \
+                else (None, "")
+            return self.answers.ended(handle, job, camera.name, request.camera_frame, transform,
+                                      withheld)
         finally:
             self.goals.release(state, job)
 
@@ -219,12 +231,17 @@ class CalibratorNode(Node):
             seed=request.seed, progress=lambda p: self.goals.progress(state, p),
             should_stop=job.should_stop)
 
-    def _publish(self, calibration: Calibration, request: Request) -> TransformStamped:
+    def _publish(self, calibration: Calibration, request: Request
+                 ) -> tuple[TransformStamped, str]:
+        """The result as a transform, published if its verdict is in ``publish_verdicts``; and
+        why it was not ("" when it was)."""
         transform = conv.transform_from_pose(calibration.result.pose, request.map_frame,
                                              request.camera_frame,
                                              self.get_clock().now().to_msg())
-        self.results.publish(transform, calibration.overlay, calibration.overlay_error)
-        return transform
+        quality = calibration.result.quality
+        verdict = quality.verdict if quality is not None else None
+        self.results.publish(transform, calibration.overlay, calibration.overlay_error, verdict)
+        return transform, self.results.withheld(verdict)
 
     def _feedback(self, state: GoalState) -> Calibrate.Feedback:
         feedback = Calibrate.Feedback(stage=state.stage, evaluations=state.evaluations,
