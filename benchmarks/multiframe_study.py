@@ -60,6 +60,14 @@ def subset(n: int, start: int) -> list[str]:
     return [FRAMES[int(i)] for i in np.round(np.linspace(0, len(FRAMES) - 1, n))]
 
 
+def paper_starts(indices: list[int]):
+    """The protocol's ProtocolParams for the paper's starts: 30 (or more) drawn, the first ones
+    used, so start k is the same whichever others a job runs."""
+    from semcal_tools.protocol import ProtocolParams
+
+    return ProtocolParams(runs=max(30, max(indices) + 1), keep=1, seed=0)
+
+
 def load_avg() -> float:
     return os.getloadavg()[0]
 
@@ -81,9 +89,9 @@ def run(args: argparse.Namespace) -> None:
     from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.errors import CalibrationFailed
     from semcal_ros.io import files
-    from semcal_tools.protocol import ProtocolParams, initial_guesses
+    from semcal_tools.protocol import initial_guesses
 
-    base = CalibrationParams()
+    base = CalibrationParams.from_file(args.config)
     base = replace(base, loss=replace(base.loss, kind=args.loss))
     LossParams(kind=args.loss)  # an unknown kind: the engine's own message
     out = Path(args.out)
@@ -96,7 +104,7 @@ def run(args: argparse.Namespace) -> None:
             names = subset(n, k)
             folders = [SCENES / f"kitti00_{name}_{args.suffix}" for name in names]
             truth = files.read_pose(folders[0] / "ground_truth.yaml")
-            starts = initial_guesses(truth, ProtocolParams(runs=max(args.starts) + 1, seed=0))
+            starts = initial_guesses(truth, paper_starts(args.starts))
             frames = [load_frame(f, base) for f in folders]
             load0 = load_avg()
             t0 = time.perf_counter()
@@ -160,7 +168,7 @@ def static(args: argparse.Namespace) -> None:
     from semcal_ros.engine.params import CalibrationParams
     from semcal_ros.engine.pose import rotation_error_deg, translation_error
     from semcal_ros.io import files, ply
-    from semcal_tools.protocol import ProtocolParams, initial_guesses
+    from semcal_tools.protocol import initial_guesses
 
     out = Path(args.out)
     have = done_keys(out)
@@ -175,7 +183,7 @@ def static(args: argparse.Namespace) -> None:
     t0 = time.thread_time()
     fused = fuse_labels(images)
     fuse_s = time.thread_time() - t0
-    starts = initial_guesses(truth, ProtocolParams(runs=max(args.starts) + 1, seed=0))
+    starts = initial_guesses(truth, paper_starts(args.starts))
     for mode in args.modes:
         target = fused.labels if mode == "fused" else images[0]
         for k in args.starts:
@@ -230,6 +238,7 @@ def main() -> None:
     r.add_argument("--starts", type=int, nargs="+", default=[0, 1, 2])
     r.add_argument("--loss", default="l2")
     r.add_argument("--suffix", default="esp", help="label source of the scene folders")
+    r.add_argument("--config", help="engine parameters under each folder's (default: defaults)")
     r.add_argument("--out", required=True)
     r.set_defaults(func=run)
     s = sub.add_parser("static")
