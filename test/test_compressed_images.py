@@ -140,7 +140,7 @@ def test_camera_inputs_decode_compressed_and_refuse_jpeg_labels():
 
 
 # --- real nodes over DDS ----------------------------------------------------------------------
-from ros_helpers import REPO, publish_until, spin_until  # noqa: E402
+from ros_helpers import REPO, publish_until, reliable_overrides, spin_until  # noqa: E402
 
 
 @pytest.fixture
@@ -355,7 +355,8 @@ def test_compressed_scene_bag_replays_to_a_calibration(graph, client, demo_scene
         "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo"}
     reader.close()
     graph.start_node("map_builder", params={"mapping.icp": False, "publish_period": 1.0,
-                                            "queue_size": 100},
+                                            "queue_size": 100,  # every scan counted: reliable
+                                            **reliable_overrides("/lidar/points", "/lidar/odom")},
                      remap={"scan": "/lidar/points", "odom": "/lidar/odom"})
     cal = graph.start_node("calibrator", params_file=REPO / "config" / "calibrator.yaml",
                            params={"image_transport": "compressed",

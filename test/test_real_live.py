@@ -25,6 +25,8 @@ rclpy = pytest.importorskip("rclpy")
 from semcal_ros.ros import conversions as conv  # noqa: E402
 from semcal_ros.ros import qos  # noqa: E402
 
+from ros_helpers import reliable_overrides  # noqa: E402
+
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -80,7 +82,10 @@ def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path, exported):
         "runner.threads": 2}, remap={"image": "/camera/image_raw", "labels": LIVE_LABELS})
     builder = graph.start_node("map_builder", params={
         "mapping.icp": False, "mapping.remove_dynamic": False, "mapping.d_max": 60.0,
-        "mapping.voxel": 0.1, "publish_period": 0.5, "queue_size": 20},
+        "mapping.voxel": 0.1, "publish_period": 0.5, "queue_size": 20,
+        # reliable scans and poses: the test waits for a map of every scan (best effort may
+        # drop one under load, and a lost last pose holds the last scan back for good)
+        **reliable_overrides("/lidar/points", "/lidar/odom")},
         remap={"scan": "/lidar/points", "odom": "/lidar/odom"})
     cal = graph.start_node("calibrator", params_file=scene / "calibrator.yaml",
                            remap={"camera/labels": LIVE_LABELS})
