@@ -68,6 +68,18 @@ def paper_starts(indices: list[int]):
     return ProtocolParams(runs=max(30, max(indices) + 1), keep=1, seed=0)
 
 
+def engine_commit() -> str:
+    """The commit of the code this run uses (the worktree's HEAD, + when it has changes)."""
+    import subprocess
+
+    here = Path(__file__).resolve().parent
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True,
+                          text=True).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "semcal_ros"], cwd=here.parent,
+                           capture_output=True, text=True).stdout.strip()
+    return head + ("+" if dirty else "")
+
+
 def load_avg() -> float:
     return os.getloadavg()[0]
 
@@ -110,7 +122,7 @@ def run(args: argparse.Namespace) -> None:
             t0 = time.perf_counter()
             c0 = time.process_time()
             row = {"kind": "rig", "frames": n, "loss": args.loss, "start": k,
-                   "suffix": args.suffix, "names": names}
+                   "suffix": args.suffix, "names": names, "engine": engine_commit()}
             try:
                 cal = calibrate_frames_and_draw(frames, starts[k], draw=False, seed=0)
                 res = cal.result
@@ -197,6 +209,7 @@ def static(args: argparse.Namespace) -> None:
             res = cal.result
             row = {"kind": f"static-{mode}", "frames": args.images, "loss": args.loss,
                    "start": k, "suffix": folder.name, "noise": args.noise,
+                   "engine": engine_commit(),
                    "translation_cm": round(translation_error(res.pose, truth) * 100, 2),
                    "rotation_deg": round(rotation_error_deg(res.pose, truth), 4),
                    "verdict": res.quality.verdict if res.quality else "",

@@ -163,6 +163,16 @@ class FrameSet:
         """The mean of the frames' losses at ``pose``."""
         return float(np.mean([f.loss(pose, stage) for f in self.frames]))
 
+    def freeze(self, pose: Pose) -> None:
+        """Each frame's likelihood confusion held fixed at ``pose`` (``loss.em``, as
+        :meth:`Problem.freeze`)."""
+        for f in self.frames:
+            f.freeze(pose)
+
+    def thaw(self) -> None:
+        for f in self.frames:
+            f.thaw()
+
     def masked(self, ignore: np.ndarray) -> "FrameSet":
         """The same frames with the stacked ``ignore`` mask's pixels left out of each one."""
         return FrameSet([f.masked(ignore[top:top + h, :w])
