@@ -8,6 +8,8 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*", "semcal_tools", "semcal_tools.*"]),
+    # the geometric point labeller's forest (semcal_tools/train_point_labeller.py writes it)
+    package_data={f"{PACKAGE}.segmentation": ["data/*.npz"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

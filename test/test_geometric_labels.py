@@ -1,6 +1,6 @@
-"""The geometric point labeller: real KITTI scans against SemanticKITTI, a synthetic scan against
-its true labels, the CLI's --method geometric, the cloud_segmenter node with method geometric as a
-process over DDS, and bad input in one line.
+"""The geometric point labeller: real KITTI scans against SemanticKITTI (scan 1, held out of the
+forest's training), a synthetic scan against its true labels, the CLI's --method geometric, the
+cloud_segmenter node with method geometric as a process over DDS, and bad input in one line.
 
 Floors are set below the measured figures (docs/segmentation.md, benchmarks/geometric_labeller.py)
 so that a change that breaks a class fails, while the labeller may still be improved.
@@ -24,9 +24,10 @@ KITTI = REPO.parent / "shared" / "data" / "kitti_odometry_00"
 needs_kitti = pytest.mark.skipif(not (KITTI / "labels" / "000000.label").is_file(),
                                  reason=f"real KITTI data not found at {KITTI}")
 
-#: Recall floors per class on KITTI 00 scan 0 (aligned classes; measured figures in
-#: docs/segmentation.md are higher).
-KITTI_FLOORS = {"ground": 0.95, "building": 0.60, "vegetation": 0.55, "car": 0.80, "pole": 0.20}
+#: Recall floors per class on KITTI 00 scan 1 (aligned classes; scan 0 trained the forest, so
+#: scan 1 is held out; measured figures in docs/segmentation.md are higher).
+KITTI_FLOORS = {"ground": 0.95, "road": 0.85, "sidewalk": 0.75, "building": 0.85,
+                "vegetation": 0.85, "car": 0.85, "pole": 0.55}
 
 
 def kitti_scan(index: int = 0):
@@ -39,7 +40,7 @@ def kitti_scan(index: int = 0):
 
 @needs_kitti
 def test_kitti_scan_reaches_the_floors_per_class():
-    xyz, intensity, reference = kitti_scan(0)
+    xyz, intensity, reference = kitti_scan(1)
     labels = label_scan(xyz, intensity)
     assert labels.dtype == np.uint16 and labels.shape == (len(xyz),)
     result = point_agreement(labels, reference)
@@ -47,9 +48,10 @@ def test_kitti_scan_reaches_the_floors_per_class():
         precision, recall, n_ref, _ = result.per_class[name]
         assert n_ref > 100, name
         assert recall >= floor, f"{name}: recall {recall:.3f} < {floor}\n{result.table()}"
-        assert precision >= 0.5, f"{name}: precision {precision:.3f}\n{result.table()}"
+        assert precision >= 0.8, f"{name}: precision {precision:.3f}\n{result.table()}"
+    assert result.overall >= 0.85, result.table()
     merged = point_agreement(labels, reference, LabelMapping(dynamic=(), merge={"sidewalk": "road"}))
-    assert merged.overall >= 0.78, merged.table()
+    assert merged.overall >= 0.9, merged.table()
     # no class the labeller never emits
     emitted = set(np.unique(labels).tolist())
     assert emitted <= {0, KITTI_ID["road"], KITTI_ID["sidewalk"], KITTI_ID["terrain"],
@@ -62,11 +64,13 @@ def test_kitti_scan_reaches_the_floors_per_class():
 def test_kitti_scan_labels_do_not_depend_on_the_mount_height():
     """The ground is estimated, not assumed: the same scan lifted by 3 m (a roadside mast) gets
     nearly the same labels."""
-    xyz, intensity, reference = kitti_scan(0)
+    xyz, intensity, reference = kitti_scan(1)
     low = label_scan(xyz, intensity)
     high = label_scan(xyz - np.array([0.0, 0.0, 3.0], np.float32), intensity)
     assert (low == high).mean() > 0.9
     assert point_agreement(high, reference).per_class["ground"][1] > 0.95
+    # the intensity channel is not used: none gives the same labels
+    np.testing.assert_array_equal(label_scan(xyz), low)
 
 
 def test_synthetic_scan_against_its_true_labels(scene_factory):

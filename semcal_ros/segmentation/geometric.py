@@ -1,48 +1,58 @@
-"""A lidar point labeller without a network: geometry (and intensity where it helps) -> SemanticKITTI ids.
+"""A lidar point labeller without a network: geometry -> SemanticKITTI ids, by a small forest.
 
 A roadside operator with an Ouster or a Livox has no trained lidar network for it, and the map
-only needs the classes the calibration compares (ground, building, vegetation, pole, car, ...).
-Those can be told apart by shape, so :func:`label_scan` labels any scan of a roughly level sensor
-(z up, sensor at the origin) in these steps:
+only needs the classes the calibration compares (road, sidewalk, terrain, building, fence,
+vegetation, trunk, pole, traffic sign, car). :func:`label_scan` labels any scan of a roughly
+level sensor (z up, sensor at the origin) in these steps:
 
-1. **Ground level** (hand-written, numpy): the median of the lowest points of 2 m cells around the
-   sensor, so no mount height is assumed.
+1. **Ground level** (numpy): the median of the lowest points of 2 m cells around the sensor, so
+   no mount height is assumed.
 2. **Ground points**: Patchwork++ (``pypatchworkpp``), on the scan shifted so that the estimated
    ground lies ``patchwork_sensor_height`` below the origin (one Patchwork++ instance serves every
    scan and every mount height).
-3. **Height above ground** of every point (hand-written, numpy/scipy): a grid of the ground
-   points' mean height, empty cells filled from the nearest filled cell.
-4. **Road, sidewalk, terrain** (hand-written: no library splits ground by kerbs): a fine grid
-   of ground heights; cells with a height step to a neighbour above ``kerb_step`` are kerbs; the
-   kerb-free region connected to the sensor's own ground is road (the vehicle stands on it),
-   ground standing clearly above the nearest road is sidewalk, rough ground is terrain.
-5. **Objects**: the other points in 0.2 m voxels; Open3D gives each voxel its neighbourhood
-   covariance (eigen features: linear, planar, scattered; the normal) and clusters the voxels
-   (DBSCAN). Hand-written rules on cluster shape (footprint, height span, how much of it is
-   planar) call a cluster car, pole (traffic-sign for a plate on it), trunk (a thick column) or a
-   mixed structure, whose voxels become building (planar, vertical) or vegetation (scattered)
-   by a neighbourhood vote. Nothing library-made classifies clusters by such rules.
+3. **Height above ground** of every point: a grid of the ground points' mean height, empty cells
+   filled from the nearest filled cell.
+4. **Kerb rules** on the ground points: a fine grid of ground heights; cells with a step to a
+   neighbour above ``kerb_step`` are kerbs; the kerb-free region connected to the sensor's own
+   ground is road, ground clearly above the nearest road is sidewalk, rough ground terrain.
+   Their guess is one of the classifier's features, not the answer.
+5. **Voxel features** (:mod:`~semcal_ros.segmentation.point_features`): local covariance at two
+   scales (linearity, planarity, scattering, verticality), the column and object each voxel
+   belongs to, kerb steps, height, range: metres and shapes, no ring count, no intensity.
+6. **A random forest** (:mod:`~semcal_ros.segmentation.forest`, arrays shipped in
+   ``segmentation/data/point_labeller.npz``, trained by ``semcal_tools/train_point_labeller.py``
+   on synthetic scans of eight simulated lidars and one SemanticKITTI scan) gives each voxel its
+   class shares; they are averaged over the voxel's ``smoothing_neighbours`` nearest voxels,
+   and every point takes its voxel's most likely class.
 
-What it cannot tell (tiny isolated clusters, returns below the ground) stays 0 (unlabeled).
-The rules use metres and shapes, not a sensor's ring count, so they serve any spinning or
-solid-state lidar; intensity is only an optional tie-breaker (``car_max_intensity``).
+Rules alone (this module until issue 33) called facades vegetation on an unseen lidar and found
+30 % of KITTI's poles; shapes at several scales, weighed by trees trained on exact labels of
+many lidars, are what tells them apart (docs/segmentation.md has the figures).
+Points nearer than ``min_range``, farther than ``max_range`` or not finite stay 0 (unlabeled).
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import threading
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
 from semcal_ros.engine.labels import KITTI_ID
+from semcal_ros.segmentation.forest import Forest
+from semcal_ros.segmentation.point_features import FEATURE_NAMES, VoxelFeatures, voxel_features
 
 ROAD, SIDEWALK, TERRAIN = KITTI_ID["road"], KITTI_ID["sidewalk"], KITTI_ID["terrain"]
 BUILDING, VEGETATION, TRUNK = KITTI_ID["building"], KITTI_ID["vegetation"], KITTI_ID["trunk"]
 POLE, SIGN, CAR = KITTI_ID["pole"], KITTI_ID["traffic-sign"], KITTI_ID["car"]
+FENCE = KITTI_ID["fence"]
+#: The model file shipped with the package.
+MODEL_FILE = Path(__file__).with_name("data") / "point_labeller.npz"
 
 
 @dataclass
@@ -60,47 +70,35 @@ class GeometricParams:
     patchwork_max_range: float = 80.0  # Patchwork++ ground search radius
     # --- height above ground ---
     height_cell: float = 1.0  # grid of the ground height (finer: follows slopes, more holes)
-    # --- road / sidewalk / terrain ---
+    # --- kerb rules (a feature of the classifier) ---
     ground_cell: float = 0.3  # grid on which kerbs are found (a kerb is ~0.1-0.15 m high)
     kerb_step: float = 0.06  # height step between neighbouring cells that separates road and kerb
     road_seed_radius: float = 8.0  # ground cells this near the sensor seed the road (vehicle lidar)
     road_reach: float = 4.0  # unconnected ground this near a road cell and level with it is road
     road_level_tolerance: float = 0.05  # "level with the road": height difference below this
     terrain_roughness: float = 0.035  # ground cells whose height spread exceeds it are terrain
-    # --- objects ---
-    voxel: float = 0.2  # object voxel size: features and clusters are computed per voxel
-    feature_radius: float = 1.5  # farthest neighbour of a voxel's covariance (sparse far walls need ~1.5)
-    feature_max_nn: int = 16  # nearest neighbours used (dense areas stay local; speed)
-    cluster_eps: float = 0.5  # DBSCAN radius: voxels nearer than this belong to one object
-    cluster_min_voxels: int = 3  # DBSCAN core size; smaller groups are noise (unlabeled)
-    min_object_points: int = 8  # clusters with fewer points stay unlabeled
-    # car: a compact box standing on the ground, nothing above it
-    car_min_length: float = 1.0  # footprint's long side (a car seen end-on shows ~1.5 m)
-    car_max_length: float = 6.0  # longer is a wall, a hedge or a bus
-    car_max_width: float = 2.6  # footprint short side: wider is no car
-    car_min_top: float = 0.8  # top of the cluster above ground
-    car_max_top: float = 2.1  # vans up to ~2.1 m; higher is a hedge or a wall
-    car_max_bottom: float = 0.6  # lowest point above ground (a car touches the ground)
-    car_max_scatter: float = 0.12  # mean scattering of its voxels (cars are smooth; bushes not)
-    car_max_intensity: float = 1.0e9  # median intensity at most this (off by default)
-    # pole / trunk: a thin vertical column
-    pole_max_width: float = 0.9  # footprint's long side of a pole (with a sign: up to ~0.9 m)
-    pole_min_height: float = 1.5  # vertical span
-    trunk_min_thickness: float = 0.25  # a column this thick (slice spread) is a trunk, not a pole
-    sign_min_spread: float = 0.35  # a slice of a pole this wide is a sign plate on it
-    # building vs vegetation, per voxel
-    wall_min_planarity: float = 0.45  # planar ...
-    wall_max_normal_z: float = 0.35  # ... with a horizontal normal (a vertical surface): building
-    vote_cell: float = 0.6  # cube of the majority vote that smooths building/vegetation
+    # --- classifier ---
+    smoothing_neighbours: int = 10  # class shares averaged over this many nearest voxels (<= 10)
+    min_share: float = 0.0  # voxels whose best class share is below this stay unlabeled
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"parameter 'geometric.{name}': {value} must be finite and >= 0")
-        for name in ("level_cell", "height_cell", "ground_cell", "voxel", "feature_radius",
-                     "cluster_eps", "vote_cell", "max_range"):
+        for name in ("level_cell", "height_cell", "ground_cell", "max_range"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"parameter 'geometric.{name}' must be > 0")
+        if self.smoothing_neighbours > 10 or int(self.smoothing_neighbours) != self.smoothing_neighbours:
+            raise ValueError("parameter 'geometric.smoothing_neighbours' must be an integer "
+                             "in 0..10")
+        if self.min_share > 1:
+            raise ValueError("parameter 'geometric.min_share' must be in 0..1")
+
+
+@functools.lru_cache(maxsize=2)
+def load_model(path: str = str(MODEL_FILE)) -> Forest:
+    """The point labeller's forest (read once per process)."""
+    return Forest.load(path, FEATURE_NAMES)
 
 
 # --- Patchwork++ ------------------------------------------------------------------------------
@@ -247,130 +245,20 @@ def _ground_classes(xyz: np.ndarray, ground_level: float, params: GeometricParam
     return label.ravel()[idx]
 
 
-# --- objects ----------------------------------------------------------------------------------
-def _voxelize(xyz: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(voxel of each point, voxel centroids, points per voxel)."""
-    key = np.floor(xyz / size).astype(np.int64)
-    key -= key.min(axis=0)
-    dims = key.max(axis=0) + 1
-    flat = (key[:, 0] * dims[1] + key[:, 1]) * dims[2] + key[:, 2]
-    _, inverse, count = np.unique(flat, return_inverse=True, return_counts=True)
-    centroid = np.stack([np.bincount(inverse, xyz[:, i]) / count for i in range(3)], axis=1)
-    return inverse, centroid, count
-
-
-def _eigen_features(centroid: np.ndarray, params: GeometricParams):
-    """(linearity, planarity, scattering, |normal z|, |main axis z|) per voxel, and the
-    Open3D cloud (reused for clustering)."""
-    import open3d as o3d
-
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(centroid))
-    cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamHybrid(
-        params.feature_radius, params.feature_max_nn))
-    cov = np.asarray(cloud.covariances)
-    values, vectors = np.linalg.eigh(cov)  # ascending
-    values = np.maximum(values, 1e-12)
-    l3, l2, l1 = values[:, 0], values[:, 1], values[:, 2]
-    linear = (l1 - l2) / l1
-    planar = (l2 - l3) / l1
-    scatter = l3 / l1
-    normal_z = np.abs(vectors[:, 2, 0])
-    axis_z = np.abs(vectors[:, 2, 2])
-    return linear, planar, scatter, normal_z, axis_z, cloud
-
-
-def _footprint(xy: np.ndarray) -> tuple[float, float]:
-    """(long, short) side of a cluster's footprint: 4 sigma along its principal axes (robust
-    to stray points, ~ the extent for a uniformly covered rectangle's 3.5 sigma)."""
-    if len(xy) < 3:
-        return 0.0, 0.0
-    cov = np.cov((xy - xy.mean(axis=0)).T)
-    ev = np.sqrt(np.maximum(np.linalg.eigvalsh(cov), 0.0))
-    return float(3.5 * ev[1]), float(3.5 * ev[0])
-
-
-def _slice_spread(xyz: np.ndarray, height: np.ndarray) -> np.ndarray:
-    """Horizontal spread (max distance from the slice's mean) of 0.3 m height slices."""
-    out = []
-    for lo in np.arange(height.min(), height.max(), 0.3):
-        sel = (height >= lo) & (height < lo + 0.3)
-        if sel.sum() >= 3:
-            xy = xyz[sel, :2]
-            out.append(float(np.hypot(*(xy - xy.mean(axis=0)).T).max()))
-    return np.array(out) if out else np.zeros(1)
-
-
-def _object_classes(xyz: np.ndarray, height: np.ndarray, intensity: np.ndarray,
-                    params: GeometricParams) -> np.ndarray:
-    """Labels of the non-ground points (see the module doc, step 5)."""
-    labels = np.zeros(len(xyz), np.uint16)
-    if len(xyz) < params.cluster_min_voxels:
-        return labels
-    inverse, centroid, count = _voxelize(xyz, params.voxel)
-    linear, planar, scatter, normal_z, axis_z, cloud = _eigen_features(centroid, params)
-    cluster = np.asarray(cloud.cluster_dbscan(params.cluster_eps, params.cluster_min_voxels))
-    point_cluster = cluster[inverse]
-    voxel_height = np.bincount(inverse, height) / count
-
-    # per voxel: building where planar and vertical, vegetation elsewhere; majority vote
-    wall = (planar > params.wall_min_planarity) & (normal_z < params.wall_max_normal_z)
-    coarse, _, _ = _voxelize(centroid, params.vote_cell)
-    weight = count.astype(np.float64)
-    wall_share = (np.bincount(coarse, weight * wall) / np.bincount(coarse, weight))[coarse]
-    voxel_label = np.where(wall_share > 0.5, BUILDING, VEGETATION).astype(np.uint16)
-    labels[:] = voxel_label[inverse]
-
-    order = np.argsort(point_cluster, kind="stable")
-    bounds = np.searchsorted(point_cluster[order], np.arange(cluster.max() + 2) - 1)
-    labels[point_cluster < 0] = 0
-    for c in range(cluster.max() + 1):
-        members = order[bounds[c + 1]:bounds[c + 2]] if c + 2 < len(bounds) else \
-            order[bounds[c + 1]:]
-        if len(members) < params.min_object_points:
-            labels[members] = 0
-            continue
-        p = xyz[members]
-        h = height[members]
-        length, width = _footprint(p[:, :2])
-        top, bottom = float(np.percentile(h, 98)), float(np.percentile(h, 2))
-        vox = np.unique(inverse[members])
-        mean_scatter = float(np.average(scatter[vox], weights=count[vox]))
-        if (params.car_min_length <= length <= params.car_max_length and width <= params.car_max_width
-                and params.car_min_top <= top <= params.car_max_top
-                and bottom <= params.car_max_bottom and mean_scatter <= params.car_max_scatter
-                and np.median(intensity[members]) <= params.car_max_intensity):
-            labels[members] = CAR
-            continue
-        if length <= params.pole_max_width and top - bottom >= params.pole_min_height:
-            spread = _slice_spread(p, h)
-            column = float(np.median(spread))
-            if column >= params.trunk_min_thickness:
-                labels[members] = TRUNK
-            else:
-                labels[members] = POLE
-                # sign plates: slices much wider than the column
-                for lo in np.arange(bottom, top, 0.3):
-                    sel = (h >= lo) & (h < lo + 0.3)
-                    if sel.sum() >= 3:
-                        xy = p[sel, :2]
-                        if np.hypot(*(xy - xy.mean(axis=0)).T).max() > params.sign_min_spread:
-                            labels[members[sel]] = SIGN
-    del voxel_height, linear, axis_z
-    return labels
-
 
 # --- entry ------------------------------------------------------------------------------------
-def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
-               params: GeometricParams | None = None) -> np.ndarray:
-    """(N,) uint16 SemanticKITTI ids of one scan in the lidar frame (z up, sensor at origin).
+#: Kerb-rule class -> feature value (0 road, 1 sidewalk, 2 terrain).
+_RULE_CODE = {ROAD: 0, SIDEWALK: 1, TERRAIN: 2}
 
-    Points with NaN/inf coordinates, nearer than ``min_range`` or farther than ``max_range``
-    get 0 (unlabeled), as do points the rules cannot tell. ``ValueError`` (one line) for a scan
-    that is not (N, 3), is empty, has no usable point, or whose intensity length differs.
-    """
+
+def scan_features(xyz: np.ndarray, intensity: np.ndarray | None = None,
+                  params: GeometricParams | None = None) -> tuple[np.ndarray, VoxelFeatures]:
+    """(indices of the scan points that are labelled, their voxels' features): steps 1-5 of
+    the module doc. The training script calls this too, so model and labeller see the same
+    numbers. ``ValueError`` (one line) for a scan that is not (N, 3), is empty, has no usable
+    point, or whose intensity length differs."""
     params = params or GeometricParams()
     xyz, intensity = _validated(xyz, intensity)
-    labels = np.zeros(len(xyz), np.uint16)
     finite = np.isfinite(xyz).all(axis=1)
     pts = np.where(finite[:, None], xyz, 0.0).astype(np.float64)
     rng = np.linalg.norm(pts, axis=1)
@@ -397,12 +285,39 @@ def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
     surface = _fill_nearest(gmean).ravel()
     height = pts[:, 2] - surface[cell]
 
-    sub = np.zeros(len(pts), np.uint16)
+    rule = np.full(len(pts), -1, np.int8)
     if ground.any():
-        sub[ground] = _ground_classes(pts[ground], level, params)
-    objects = ~ground
-    sub[objects] = _object_classes(pts[objects], height[objects], inten[objects], params)
-    labels[index] = sub
+        ground_ids = _ground_classes(pts[ground], level, params)
+        lut = np.zeros(int(ground_ids.max()) + 1, np.int8)
+        for kitti_id, code in _RULE_CODE.items():
+            if kitti_id < len(lut):
+                lut[kitti_id] = code
+        rule[ground] = lut[ground_ids]
+    return index, voxel_features(pts, ground, height, level, rule)
+
+
+def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
+               params: GeometricParams | None = None) -> np.ndarray:
+    """(N,) uint16 SemanticKITTI ids of one scan in the lidar frame (z up, sensor at origin).
+
+    Points with NaN/inf coordinates, nearer than ``min_range`` or farther than ``max_range``
+    get 0 (unlabeled), as do voxels the forest leaves to its "other" class (people, bicycles,
+    clutter). ``ValueError`` (one line) for a scan that is not (N, 3), is empty, has no usable
+    point, or whose intensity length differs.
+    """
+    params = params or GeometricParams()
+    index, feats = scan_features(xyz, intensity, params)
+    forest = load_model()
+    shares = forest.predict_proba(feats.values)
+    k = int(params.smoothing_neighbours)
+    if k > 1:
+        shares = shares[feats.neighbours[:, :k]].mean(axis=1)
+    best = shares.argmax(axis=1)
+    voxel_label = forest.classes[best]
+    if params.min_share > 0:
+        voxel_label = np.where(shares.max(axis=1) >= params.min_share, voxel_label, 0)
+    labels = np.zeros(len(xyz), np.uint16)
+    labels[index] = voxel_label[feats.inverse]
     return labels
 
 
