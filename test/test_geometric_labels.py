@@ -73,6 +73,23 @@ def test_kitti_scan_labels_do_not_depend_on_the_mount_height():
     np.testing.assert_array_equal(label_scan(xyz), low)
 
 
+@needs_kitti
+def test_smoothing_and_min_share_do_what_they_say():
+    """Without smoothing the labels are noisier but close; a high min_share leaves the
+    uncertain voxels unlabeled and keeps the rest as they were."""
+    xyz, intensity, reference = kitti_scan(1)
+    smooth = label_scan(xyz, intensity)
+    raw = label_scan(xyz, intensity, GeometricParams(smoothing_neighbours=0))
+    assert 0.9 < (raw == smooth).mean() < 1.0
+    strict = label_scan(xyz, intensity, GeometricParams(min_share=0.6))
+    dropped = (strict == 0) & (smooth != 0)
+    assert 0.01 < dropped.mean() < 0.5
+    np.testing.assert_array_equal(strict[strict != 0], smooth[strict != 0])
+    kept = strict != 0
+    assert (point_agreement(strict[kept], reference[kept]).overall
+            > point_agreement(smooth, reference).overall)
+
+
 def test_synthetic_scan_against_its_true_labels(scene_factory):
     from semcal_ros.io.ply import read_ply
 
@@ -110,8 +127,12 @@ def test_bad_scans_are_refused_in_one_line(xyz, intensity, message):
 
 
 def test_bad_parameters_are_refused_by_name():
-    with pytest.raises(ValueError, match="geometric.voxel"):
-        GeometricParams(voxel=0.0)
+    with pytest.raises(ValueError, match="geometric.ground_cell"):
+        GeometricParams(ground_cell=0.0)
+    with pytest.raises(ValueError, match="geometric.smoothing_neighbours"):
+        GeometricParams(smoothing_neighbours=11)
+    with pytest.raises(ValueError, match="geometric.min_share"):
+        GeometricParams(min_share=1.5)
 
 
 def test_config_file_holds_the_defaults():

@@ -38,7 +38,7 @@ POINT_LABELLERS: dict[str, PointLabeller] = {
     "onnx": PointLabeller("onnx", True, "an ONNX range-image model (RangeNet++/SalsaNext "
                                         "convention, configured by a model config YAML)"),
     "geometric": PointLabeller("geometric", False, "the network-free geometric labeller "
-                                                   "(ground segmentation, shape rules)"),
+                                                   "(ground segmentation, shape features, a shipped forest)"),
 }
 #: The labellers that need no model file (they can run inside a workflow on any scan).
 MODEL_FREE = tuple(name for name, kind in POINT_LABELLERS.items() if not kind.needs_model)
