@@ -69,6 +69,9 @@ def main() -> int:
     ap.add_argument("--scene", type=Path, help="a synthetic scene folder (semcal scene): its scans")
     ap.add_argument("--scene-scans", type=int, default=5, help="how many of the scene's scans")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--max-x", type=float,
+                    help="count only KITTI points behind this x (m), e.g. -5 for a forest trained "
+                         "with train_point_labeller.py --kitti-min-x 5")
     args = ap.parse_args()
 
     from semcal_ros.io import kitti, ply
@@ -86,8 +89,9 @@ def main() -> int:
             start = time.perf_counter()
             pred = label_scan(cloud.xyz, intensity)
             runs.append(time.perf_counter() - start)
-        preds.append(pred)
-        refs.append(ref)
+        keep = cloud.xyz[:, 0] < args.max_x if args.max_x is not None else slice(None)
+        preds.append(pred[keep])
+        refs.append(ref[keep])
         times.append(statistics.median(runs))
         sizes.append(len(pred))
         print(f"scan {i:06d}: {len(pred)} points, {1e3 * times[-1]:.0f} ms (median of "
