@@ -48,7 +48,7 @@ def test_kitti_scan_reaches_the_floors_per_class():
         precision, recall, n_ref, _ = result.per_class[name]
         assert n_ref > 100, name
         assert recall >= floor, f"{name}: recall {recall:.3f} < {floor}\n{result.table()}"
-        assert precision >= 0.8, f"{name}: precision {precision:.3f}\n{result.table()}"
+        assert precision >= 0.7, f"{name}: precision {precision:.3f}\n{result.table()}"
     assert result.overall >= 0.85, result.table()
     merged = point_agreement(labels, reference, LabelMapping(dynamic=(), merge={"sidewalk": "road"}))
     assert merged.overall >= 0.9, merged.table()

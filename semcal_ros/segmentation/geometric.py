@@ -18,7 +18,8 @@ level sensor (z up, sensor at the origin) in these steps:
    Their guess is one of the classifier's features, not the answer.
 5. **Voxel features** (:mod:`~semcal_ros.segmentation.point_features`): local covariance at two
    scales (linearity, planarity, scattering, verticality), the column and object each voxel
-   belongs to, kerb steps, height, range: metres and shapes, no ring count, no intensity.
+   belongs to, kerb steps, height above the ground, range: metres and shapes, no ring count,
+   no intensity.
 6. **A random forest** (:mod:`~semcal_ros.segmentation.forest`, arrays shipped in
    ``segmentation/data/point_labeller.npz``, trained by ``semcal_tools/train_point_labeller.py``
    on synthetic scans of eight simulated lidars and one SemanticKITTI scan) gives each voxel its
@@ -293,7 +294,7 @@ def scan_features(xyz: np.ndarray, intensity: np.ndarray | None = None,
             if kitti_id < len(lut):
                 lut[kitti_id] = code
         rule[ground] = lut[ground_ids]
-    return index, voxel_features(pts, ground, height, level, rule)
+    return index, voxel_features(pts, ground, height, rule)
 
 
 def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,

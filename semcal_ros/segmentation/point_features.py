@@ -15,6 +15,9 @@ points fall on it):
   how far the nearest tall object stands (sidewalks run along facades);
 * the voxel's **height above the ground** and its horizontal distance from the sensor.
 
+Not its height above the sensor's own ground level: a road that climbs 0.1-0.2 m over 30 m
+(PJLab's frames) then looked like KITTI's raised sidewalk and came out terrain.
+
 Ground (Patchwork++) and non-ground points are voxelised apart, so a voxel at the foot of a
 wall does not mix the two. Intensity is not used: its scale differs between lidars, and the
 synthetic scenes' intensity is a per-class table, which a classifier would learn instead of shape.
@@ -34,7 +37,7 @@ from semcal_ros.segmentation import forest as _forest  # noqa: F401  (numba's th
 #: Feature columns, in the order of :attr:`VoxelFeatures.values` (the model file stores them
 #: and is refused when they differ).
 FEATURE_NAMES: tuple[str, ...] = (
-    "is_ground", "height", "range", "z_above_level",
+    "is_ground", "height", "range",
     "s_linearity", "s_planarity", "s_scattering", "s_normal_z", "s_axis_z", "s_size", "s_zspan",
     "l_linearity", "l_planarity", "l_scattering", "l_normal_z", "l_axis_z", "l_size", "l_zspan",
     "col_top", "col_bottom", "col_top_wide", "col_count",
@@ -306,14 +309,14 @@ def _ground_features(xy: np.ndarray, z: np.ndarray, ground: np.ndarray, rule: np
     return out
 
 
-def voxel_features(xyz: np.ndarray, ground: np.ndarray, height: np.ndarray, level: float,
-                   rule: np.ndarray, params: FeatureParams = FeatureParams()) -> VoxelFeatures:
+def voxel_features(xyz: np.ndarray, ground: np.ndarray, height: np.ndarray, rule: np.ndarray,
+                   params: FeatureParams = FeatureParams()) -> VoxelFeatures:
     """Features of a scan's voxels.
 
     ``xyz`` (N, 3) in the lidar frame (z up, sensor at the origin), ``ground`` (N,) the ground
-    segmentation, ``height`` (N,) each point's height above the ground surface, ``level`` the
-    ground's height at the sensor, ``rule`` (N,) the kerb rules' class of ground points (0 road,
-    1 sidewalk, 2 terrain; any value for other points).
+    segmentation, ``height`` (N,) each point's height above the ground surface, ``rule`` (N,)
+    the kerb rules' class of ground points (0 road, 1 sidewalk, 2 terrain; any value for other
+    points).
     """
     inverse, first, count, centroid = _voxelize(xyz, ground, params.voxel)
     vground = ground[first]
@@ -323,7 +326,6 @@ def voxel_features(xyz: np.ndarray, ground: np.ndarray, height: np.ndarray, leve
     values[:, 0] = vground
     values[:, 1] = vheight
     values[:, 2] = np.hypot(centroid[:, 0], centroid[:, 1])
-    values[:, 3] = centroid[:, 2] - level
     k_small = min(params.knn_small, n)
     neighbours = np.zeros((n, k_small), np.int64)
     for part in (vground, ~vground):
@@ -331,15 +333,15 @@ def voxel_features(xyz: np.ndarray, ground: np.ndarray, height: np.ndarray, leve
         if len(members) < 3:
             continue
         eigen, idx = _neighbourhoods(centroid[members], params)
-        values[members, 4:18] = eigen
+        values[members, 3:17] = eigen
         pad = np.repeat(idx[:, -1:], k_small - idx.shape[1], axis=1)
         neighbours[members] = members[np.concatenate([idx, pad], axis=1)]
     objects = ~vground
     xy = centroid[:, :2]
-    values[:, 18:22] = _column_features(xy, vheight, objects, params)
+    values[:, 17:21] = _column_features(xy, vheight, objects, params)
     obj, _, _ = _object_features(xy, vheight, objects, params)
-    values[:, 22:26] = obj
+    values[:, 21:25] = obj
     vrule = np.where(vground, rule[first], -1).astype(np.float32)
-    tall = objects & (values[:, 24] >= params.tall_height)
-    values[:, 26:31] = _ground_features(xy, centroid[:, 2], vground, vrule, tall, params)
+    tall = objects & (values[:, 23] >= params.tall_height)
+    values[:, 25:30] = _ground_features(xy, centroid[:, 2], vground, vrule, tall, params)
     return VoxelFeatures(inverse, values, neighbours, vground)
