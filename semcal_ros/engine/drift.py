@@ -204,6 +204,7 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
                        t0)
     counter = EvaluationCounter(None, None)
     search = Search(problem, counter)
+    search.confine(calibrated)  # the check's bounds hold: a larger move is reported at them
     vec, loss_best = _search(search, problem, calibrated, dp)
     if loss_best >= start.loss:
         vec, loss_best = calibrated.vector(), start.loss
