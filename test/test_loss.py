@@ -8,7 +8,7 @@ from semcal_ros.engine.loss import LabelLoss, LossParams, loss_reference, pair_t
 
 ROAD, BUILDING, VEG = CITYSCAPES_ID["road"], CITYSCAPES_ID["building"], CITYSCAPES_ID["vegetation"]
 #: The paper's loss: every mismatch costs its full colour distance (the default adds a boundary band).
-PAPER = LossParams(boundary_band_px=0.0)
+PAPER = LossParams(kind="l2", boundary_band_px=0.0)
 
 
 def colour_l2(a, b):
@@ -50,7 +50,7 @@ def test_uncovered_cost_counts_holes_over_map_classes():
     rendered[0] = INVALID  # over the sky: a match either way
     rendered[3, :2] = BUILDING
     rendered[2, :4] = INVALID  # 4 holes over road: masked by the paper, costed here
-    params = LossParams(uncovered_cost=0.5)
+    params = LossParams(kind="l2", uncovered_cost=0.5)
     value, coverage = LabelLoss(target, params).evaluate(rendered)
     assert value == pytest.approx((2 * colour_l2(BUILDING, ROAD) + 4 * 0.5) / 40)
     assert coverage == pytest.approx(26 / 30)
@@ -90,7 +90,7 @@ def test_crop_top_and_degenerate_view():
     target = np.full((10, 4), ROAD, np.uint8)
     rendered = target.copy()
     rendered[:5] = BUILDING
-    assert LabelLoss(target, LossParams(crop_top=0.5))(rendered) == 0.0
+    assert LabelLoss(target, LossParams(kind="l2", crop_top=0.5))(rendered) == 0.0
     empty = np.full_like(target, INVALID)
     p = LossParams(min_coverage=0.05, degenerate_loss=7.0)
     assert LabelLoss(target, p)(empty) == 7.0
@@ -116,7 +116,7 @@ def test_boundary_band_discounts_mismatches_near_the_class_and_matches_the_refer
     target = np.full((20, 40), ROAD, np.uint8)
     target[:10, :20] = BUILDING
     target[:3] = SKY
-    band = LossParams(boundary_band_px=4.0)
+    band = LossParams(kind="l2", boundary_band_px=4.0)
     # building drawn 2 px too far right: the wrong pixels lie within 2 px of the target's building
     shifted = target.copy()
     shifted[3:10, 20:22] = BUILDING
@@ -217,7 +217,7 @@ def test_class_probabilities_give_the_expected_cost():
     one_hot[ok, target[ok]] = 1.0
     lut = LabelMapping().image_lut()
     for band in (0.0, 4.0):
-        p = LossParams(boundary_band_px=band)
+        p = LossParams(kind="l2", boundary_band_px=band)
         # certain probabilities = the argmax loss (up to the uint16 cost quantisation)
         sure = LabelLoss(target, p, probabilities=aligned_probabilities(one_hot, lut, target))
         assert sure(rendered) == pytest.approx(LabelLoss(target, p)(rendered), abs=1e-4)

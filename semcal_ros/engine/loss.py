@@ -319,6 +319,9 @@ def read_probabilities(path) -> np.ndarray:
     return p.astype(np.float32)
 
 
+#: the ``mi`` loss is the likelihood with no prior
+_NO_PRIOR = np.zeros((N_CLASSES + 1, N_CLASSES))
+
 #: expected costs are stored as uint16 in units of the largest colour distance / 65535
 _COST_UNIT = 3.0 / 65535.0
 
@@ -431,7 +434,8 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft):
 
 @numba.njit(cache=True, nogil=True)
 def _likelihood(joint, prior, weight, h_target):
-    """The kernel of :func:`likelihood_share` (``h_target`` precomputed)."""
+    """The kernel of :func:`likelihood_share` (``h_target`` precomputed); with ``weight`` 0 it
+    is H(T | R) / H(T), the ``mi`` loss."""
     n = 0.0
     h = 0.0
     for r in range(joint.shape[0]):
@@ -445,22 +449,6 @@ def _likelihood(joint, prior, weight, h_target):
             c = joint[r, t]
             if c > 0:
                 h -= c * np.log((c / nr + weight * prior[r, t]) / (1.0 + weight))
-    return h / n / h_target if n > 0 and h_target > 0 else 0.0
-
-
-@numba.njit(cache=True, nogil=True)
-def _conditional_entropy(joint, h_target):
-    n = 0.0
-    h = 0.0
-    for r in range(joint.shape[0]):
-        nr = 0.0
-        for t in range(joint.shape[1]):
-            nr += joint[r, t]
-        n += nr
-        for t in range(joint.shape[1]):
-            c = joint[r, t]
-            if c > 0:
-                h -= c * np.log(c / nr)
     return h / n / h_target if n > 0 and h_target > 0 else 0.0
 
 
@@ -551,7 +539,7 @@ class LabelLoss:
             if self.prior is not None:
                 return float(_likelihood(joint, self.prior, self.params.prior_weight,
                                          self.h_target)), coverage
-            return float(_conditional_entropy(joint, self.h_target)), coverage
+            return float(_likelihood(joint, _NO_PRIOR, 0.0, self.h_target)), coverage
         if self.costs is not None:
             total, n_valid, n_scene, n_covered = _cost_kernel(flat, self.target, self.start,
                                                               self.costs)
