@@ -58,8 +58,7 @@ CONFUSIONS = (("terrain", "vegetation"), ("building", "vegetation"), ("sky", "bu
 
 @dataclass(frozen=True)
 class LossParams:
-    kind: str = "likelihood"  # "l2" (squared colour distance: the paper's), "huber", "mi"
-    # (mutual information),
+    kind: str = "l2"  # "l2" (squared colour distance), "huber", "mi" (mutual information),
     # "likelihood" (the mean log-likelihood of the labels under a confusion matrix estimated at
     # the pose, shrunk towards a prior that favours the diagonal and the usual confusions) or
     # "balanced" (every mismatch costs alike, each label class weighted by the inverse of its
