@@ -107,3 +107,15 @@ def test_loss_parameters_are_checked():
         LossParams(kind="likelihood", prior_weight=-1.0)
     with pytest.raises(ValueError, match="confusion_weight"):
         replace(LossParams(), confusion_weight=2.0)
+
+
+def test_the_real_labels_parameter_file_selects_the_likelihood():
+    from pathlib import Path
+
+    from semcal_ros.engine.params import CalibrationParams
+
+    path = Path(__file__).resolve().parents[1] / "config" / "real_labels.yaml"
+    params = CalibrationParams.from_file(str(path))
+    assert params.loss.kind == "likelihood"
+    assert params.loss.prior_weight == LossParams().prior_weight
+    assert params.search == CalibrationParams().search  # nothing else changed
