@@ -42,9 +42,15 @@ PINNED_FILES = {
 BLOCK = 24  # px: divides the scenes' 960 x 600
 
 #: Tolerances: counts within 0.2 % + 2 points, means and spreads within 2 mm (intensity 0.002),
-#: image block means within 1 grey level (mean over blocks within 0.1), poses within 1e-9.
+#: image block means: 99 % of the block-channel means within 1 grey level, none beyond 16, their
+#: mean difference within 0.2; poses within 1e-9. A few blocks may move by more than rounding:
+#: where a triangle is seen almost edge-on, whether its normal is turned to face the camera
+#: depends on the sign of a dot product near 0, which another CPU may round the other way
+#: (measured on a 2-core x86 machine against the pinned file: 6-7 of 3000 block-channel means
+#: beyond 1 grey level, the worst 1.1 and 7.1, the mean 0.098 and 0.041, the labels identical).
+#: A changed layout, lighting or camera moves hundreds of blocks and the mean by far more.
 COUNT_REL, COUNT_ABS, LENGTH_TOL, INTENSITY_TOL = 2e-3, 2, 2e-3, 2e-3
-BLOCK_MAX, BLOCK_MEAN, POSE_TOL = 1.0, 0.1, 1e-9
+BLOCK_MAX, BLOCK_WORST, BLOCK_SHARE, BLOCK_MEAN, POSE_TOL = 1.0, 16.0, 0.99, 0.2, 1e-9
 
 
 def key_name(key: tuple) -> str:
@@ -93,7 +99,8 @@ def compare(name: str, got: object, want: object) -> list[str]:
         if got["shape"] != want["shape"]:
             return [f"{name}: shape {got['shape']} vs {want['shape']}"]
         diff = np.abs(np.subtract(got["blocks"], want["blocks"]))
-        if diff.max() > BLOCK_MAX or diff.mean() > BLOCK_MEAN:
+        if np.quantile(diff, BLOCK_SHARE) > BLOCK_MAX or diff.max() > BLOCK_WORST or \
+                diff.mean() > BLOCK_MEAN:
             problems.append(f"{name}: block means differ by up to {diff.max():.2f} "
                             f"(mean {diff.mean():.3f}) grey levels")
     elif name.endswith(".ply"):
