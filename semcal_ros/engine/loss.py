@@ -252,13 +252,20 @@ def likelihood_share(joint: np.ndarray, prior: np.ndarray, weight: float) -> flo
     which class matches which)."""
     joint = np.asarray(joint, float)
     n = joint.sum()
-    rows = joint.sum(axis=1, keepdims=True)
     cols = joint.sum(axis=0)
+    conf = shrunk_confusion(joint, prior, weight)
     with np.errstate(divide="ignore", invalid="ignore"):
-        conf = (joint / np.where(rows > 0, rows, 1.0) + weight * prior) / (1.0 + weight)
         cost = -np.sum(np.where(joint > 0, joint * np.log(np.where(joint > 0, conf, 1.0)), 0.0))
         h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
     return float(cost / n / h_t) if h_t > 0 else 0.0
+
+
+def shrunk_confusion(joint: np.ndarray, prior: np.ndarray, weight: float) -> np.ndarray:
+    """C = (row share of ``joint`` + weight x prior) / (1 + weight): the confusion matrix at a
+    pose shrunk towards the prior; a row nothing was drawn in is the prior's."""
+    rows = joint.sum(axis=1, keepdims=True)
+    share = joint / np.where(rows > 0, rows, 1.0)
+    return np.where(rows > 0, (share + weight * prior) / (1.0 + weight), prior)
 
 
 def conditional_entropy_share(joint: np.ndarray) -> float:
@@ -510,10 +517,7 @@ class LabelLoss:
         flat = np.ascontiguousarray(rendered).ravel()
         joint = np.zeros((N_CLASSES + 1, N_CLASSES))
         _joint_kernel(flat, self.target, self.start, joint, self.probabilities, self.soft)
-        rows = joint.sum(axis=1, keepdims=True)
-        w = self.params.prior_weight
-        conf = (joint / np.where(rows > 0, rows, 1.0) + w * self.prior) / (1.0 + w)
-        conf = np.where(rows > 0, conf, self.prior)  # a class not drawn yet: the prior
+        conf = shrunk_confusion(joint, self.prior, self.params.prior_weight)
         self.frozen = -np.log(np.maximum(conf, 1e-4))
 
     def thaw(self) -> None:

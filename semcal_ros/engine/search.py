@@ -172,7 +172,7 @@ class Search:
         if self.outside(best[1]) and not self.outside(center):
             # the simplex is centred on ``center`` and never evaluates it: from the edge of the
             # box every vertex may lie outside; the centre then stays the answer
-            pose = self.pose_at(center, np.zeros(len(self.free)))
+            pose = Pose.from_vector(center)
             return pose.vector(), float(self.score(pose, stage))
         return best[1], float(best[0])
 
@@ -209,12 +209,12 @@ class Search:
             self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
                                      f"(1/{stages[k].scale} resolution)")
             if em:  # E step at the stage's start, then the stage minimises under it
-                self.problem.freeze(self.pose_at(center, np.zeros(len(self.free))))
+                self.problem.freeze(Pose.from_vector(center))
             center, loss = self.nelder_mead(k, center, run)
             center, loss = self.restart(k, center, loss, run, label)
         if em:  # results are compared under the loss re-estimated at each pose
             self.problem.thaw()
-            loss = self.score(self.pose_at(center, np.zeros(len(self.free))), -1)
+            loss = self.score(Pose.from_vector(center), -1)
         return center, loss
 
 
