@@ -87,6 +87,25 @@ def test_goals_queue_one_per_key_and_a_cancelled_queued_job_never_starts():
     runner.close()
 
 
+def test_a_goal_claimed_behind_a_submitted_one_says_queued_from_its_first_feedback():
+    """The feedback timer may fire between claim and run: the stage is right from the claim."""
+    runner = GoalRunner(_Node(), 0.5, lambda state: state.stage)
+    gate = threading.Event()
+    north = runner.claim("north", "aaaa", _handle())
+    assert north.stage == "preparing"  # nothing ahead of it
+    job = EngineJob(lambda j: gate.wait(60))
+    thread = threading.Thread(target=runner.run, args=(north, job))
+    thread.start()
+    _wait_for(lambda: north.submitted, "north to be submitted")
+    south = runner.claim("south", "bbbb", _handle())
+    assert south.stage == "queued"
+    gate.set()
+    thread.join(30)
+    runner.release(north, job)
+    runner.release(south, None)
+    runner.close()
+
+
 def test_single_key_busy_text_and_errors_kept():
     runner = GoalRunner(_Node(), 0.5, lambda state: state.stage)
     state = runner.claim("", "aaaa", _handle())

@@ -162,6 +162,8 @@ class GoalRunner:
                                            f"({note})")
                 return self.last_rejection
             state = GoalState(key, goal_id, handle, time.monotonic())
+            if any(s.submitted for s in self._goals.values()):
+                state.stage = "queued"  # from its first feedback on, not once it is submitted
             self._goals[key] = state
             self.last_rejection = ""
             return state
