@@ -108,11 +108,12 @@ def test_runs_that_disagree_fail_the_result():
     cam = camera()
     problem = Problem(world, target_image(cam, world=world), cam, GROUND_TRUTH.translation)
     far = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [1.0, 0, 0], GROUND_TRUTH.body_rpy_deg())
-    runs = [RunResult(GROUND_TRUTH, GROUND_TRUTH, 0.01, 10, 0.01, True, 0),
-            RunResult(far, far, 0.0101, 10, 0.01, True, 1)]
+    loss, floor = problem.loss(GROUND_TRUTH), problem.floor(GROUND_TRUTH)
+    runs = [RunResult(GROUND_TRUTH, GROUND_TRUTH, loss, 10, loss, True, 0),
+            RunResult(far, far, loss + 0.01 * (loss - floor), 10, loss, True, 1)]
     q = assess(problem, GROUND_TRUTH, runs)
     assert q.verdict == "failed" and "runs disagree" in q.reason
-    runs[1] = RunResult(far, far, 0.05, 10, 0.05, True, 1)  # clearly worse: no rival
+    runs[1] = RunResult(far, far, loss + 0.05, 10, loss + 0.05, True, 1)  # clearly worse
     assert assess(problem, GROUND_TRUTH, runs).verdict == "good"
 
 

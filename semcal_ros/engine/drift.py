@@ -10,7 +10,8 @@ clearly better pose costs a few dozen coarse renders. :func:`check_drift` does t
    small bounds (``bound_m``, ``bound_deg``): pan and tilt alone first (``turn_share`` of the
    renders), then every free axis, at most ``max_evaluations`` renders in all;
 3. the drift is the distance from the calibration to the best pose found; it counts only if that
-   pose also lowers the loss by ``min_gain`` (relative): a search always finds *some* pose a hair
+   pose also lowers the loss by ``min_gain`` (relative to its excess over the loss's floor, the
+   value a perfect match would have: 0 for L2): a search always finds *some* pose a hair
    better on noisy labels, and a real move of the camera lowers the loss by far more;
 4. a counted drift is sized by ``size_evaluations`` renders at ``size_scale`` (full) resolution
    from there (the coarse search finds that the camera moved, not how far: it undersized the
@@ -60,7 +61,7 @@ class DriftParams:
     max_evaluations: int = 50  # renders of the search (plus one at the calibration)
     turn_share: float = 0.4  # of them spent on pan and tilt alone first
     min_gain: float = 0.05  # relative loss drop (beyond the reference's) that counts as drift
-    min_gain_absolute: float = 0.15  # the same without a reference check (semcal check alone)
+    min_gain_absolute: float = 0.2  # the same without a reference check (semcal check alone)
     min_coverage: float = 0.10  # the map must cover this share of the image's scene pixels
     # a counted drift is sized by a search at size_scale from the coarse estimate (the coarse
     # one undersized the demo's knock by half: at 1/4 resolution 0.3 deg is 0.6 px)
@@ -242,7 +243,10 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     best = Pose.from_vector(vec)
     dt = translation_error(best, calibrated)
     dr = rotation_error_deg(best, calibrated)
-    gain = (start.loss - loss_best) / start.loss if start.loss > 0 else 0.0
+    # the drop relative to the loss's excess over its floor (0 for L2): a loss whose perfect
+    # match is not 0 (the likelihood) would otherwise need a larger move to count
+    excess = start.loss - problem.floor(calibrated, 0)
+    gain = (start.loss - loss_best) / excess if excess > 0 else 0.0
     raw_vec, raw_gain = vec, gain
     if reference is not None and reference.estimated is not None:
         vec = vec - (reference.raw_vector - reference.calibrated.vector())

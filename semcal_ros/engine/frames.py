@@ -75,6 +75,11 @@ class StackedLoss:
     def __call__(self, stacked: np.ndarray) -> float:
         return self.evaluate(stacked)[0]
 
+    def floor(self, stacked: np.ndarray) -> float:
+        """The mean of the frames' floors (:meth:`LabelLoss.floor`)."""
+        return float(np.mean([loss.floor(np.ascontiguousarray(stacked[top:top + h, :w]))
+                              for loss, (top, h, w) in zip(self.losses, self.rows)]))
+
 
 @dataclass(frozen=True)
 class StackedLevel:
@@ -162,6 +167,10 @@ class FrameSet:
     def loss(self, pose: Pose, stage: int = -1) -> float:
         """The mean of the frames' losses at ``pose``."""
         return float(np.mean([f.loss(pose, stage) for f in self.frames]))
+
+    def floor(self, pose: Pose, stage: int = -1) -> float:
+        """The mean of the frames' floors at ``pose`` (:meth:`Problem.floor`)."""
+        return float(np.mean([f.floor(pose, stage) for f in self.frames]))
 
     def freeze(self, pose: Pose) -> None:
         """Each frame's likelihood confusion held fixed at ``pose`` (``loss.em``, as

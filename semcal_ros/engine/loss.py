@@ -58,7 +58,7 @@ CONFUSIONS = (("terrain", "vegetation"), ("building", "vegetation"), ("sky", "bu
 
 @dataclass(frozen=True)
 class LossParams:
-    kind: str = "l2"  # "l2" (squared colour distance), "huber", "mi" (mutual information),
+    kind: str = "likelihood"  # "l2" (squared colour distance, the paper's), "huber", "mi" (mutual information),
     # "likelihood" (the mean log-likelihood of the labels under a confusion matrix estimated at
     # the pose, shrunk towards a prior that favours the diagonal and the usual confusions) or
     # "balanced" (every mismatch costs alike, each label class weighted by the inverse of its
@@ -523,6 +523,18 @@ class LabelLoss:
     def thaw(self) -> None:
         """Back to the confusion matrix re-estimated at every pose."""
         self.frozen = None
+
+    def floor(self, rendered: np.ndarray) -> float:
+        """The loss ``rendered`` would have if every pixel it covers drew its label's class: what
+        no pose can beat with this coverage. 0 for the paper's L2; above 0 for the losses whose
+        confusion matrix is shrunk towards a prior (a perfect match still pays -log C[c, c] < 1)
+        and for any loss counting the pixels nothing covers. The verdict measures a loss rise
+        above this floor, so a floor does not widen the uncertainty it reports."""
+        flat = np.ascontiguousarray(rendered).reshape(self.shape)
+        target = self.target.reshape(self.shape)
+        perfect = np.where((flat != INVALID) & (target != INVALID), target, flat)
+        value, _ = self.evaluate(perfect.astype(np.uint8))
+        return value
 
     def evaluate(self, rendered: np.ndarray) -> tuple[float, float]:
         """(loss, coverage of the target's non-sky pixels by rendered points)."""

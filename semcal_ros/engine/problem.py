@@ -131,6 +131,11 @@ class Problem:
         """The loss (``params.loss.kind``) at ``pose`` (``stage`` -1: full resolution)."""
         return self.level(stage).loss(self.render(pose, stage))
 
+    def floor(self, pose: Pose, stage: int = -1) -> float:
+        """The loss at ``pose`` if every pixel the map covers there drew its label's class
+        (:meth:`~semcal_ros.engine.loss.LabelLoss.floor`): a loss's rise is judged above it."""
+        return self.level(stage).loss.floor(self.render(pose, stage))
+
     def freeze(self, pose: Pose) -> None:
         """Hold the likelihood's confusion matrix fixed at ``pose`` at every level (EM's E
         step, ``loss.em``); other losses are unchanged."""

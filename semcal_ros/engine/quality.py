@@ -11,9 +11,12 @@ public loss at a pose, so ``semcal calibrate``, the action and the drift watch s
 * coverage: share of the target's scene pixels the map covers;
 * per-axis uncertainty: how far each of x, y, z (map frame) and roll, pitch, yaw (camera body) can
   move from the result, alone, before the loss rises by ``rise`` (relative) + ``rise_abs``; the larger
-  of the two directions, capped at the search bound (a capped axis is unconstrained);
-* the verification runs: a distinct basin whose refined loss is as low as the result's means the
-  data cannot decide between two places;
+  of the two directions, capped at the search bound (a capped axis is unconstrained). The relative
+  rise is measured above the loss's floor at the result (what a perfect match with the same coverage
+  would score, :meth:`~semcal_ros.engine.loss.LabelLoss.floor`: 0 for the paper's L2), so a loss
+  whose perfect match is not 0 (the likelihood's shrunk confusion matrix) is judged like L2;
+* the verification runs: a distinct basin whose refined loss is as low as the result's (within
+  ``rival_margin`` of its rise above the floor) means the data cannot decide between two places;
 * the start: a result farther from its initial guess than the basin measured on the scene
   catalogue (``basin_*``; yaw not counted when the yaw search ran) came from a start nobody
   measured to converge, so it is not called good (docs/engine.md "How good must the start be").
@@ -52,7 +55,7 @@ class ProbedProblem(Protocol):
 
     def render(self, pose: Pose, stage: int = -1) -> np.ndarray: ...
 
-    def level(self, stage: int) -> Any: ...
+    def level(self, stage: int) -> Any: ...  # .loss: evaluate(rendered), floor(rendered)
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 VERDICTS = ("good", "inconclusive", "failed")
@@ -74,7 +77,7 @@ class QualityParams:
     min_coverage: float = 0.15  # below: inconclusive (too little of the image to judge)
     disagree_translation_m: float = 0.3  # a rival basin this far away with a loss as low: failed
     disagree_rotation_deg: float = 0.3
-    rival_margin: float = 0.02  # "as low": refined loss <= result's * (1 + margin)
+    rival_margin: float = 0.02  # "as low": refined loss <= best + margin x (best - floor)
     # the start's basin measured on the four catalogue layouts (docs/engine.md "How good must the
     # start be"): a result farther from its start than this (per map axis; body pitch; body yaw,
     # unless the yaw search ran) came from a start no measurement covers: at most inconclusive
@@ -121,18 +124,22 @@ def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 
 
 def axis_uncertainty(problem: ProbedProblem, pose: Pose, params: QualityParams,
                      bounds: Sequence[float], on_probe: Callable[[], None] | None = None,
-                     loss0: float | None = None) -> tuple[np.ndarray, int]:
+                     loss0: float | None = None, floor0: float | None = None
+                     ) -> tuple[np.ndarray, int]:
     """Per axis (x, y, z in m; roll, pitch, yaw in deg): how far the pose can move along it, in
     either direction, before the loss at ``params.stage`` rises by the set amount. Probes double
     from ``step`` until the loss rises or the bound is passed, then bisect the bracket; the larger
     direction counts. Returns the six values and the evaluations spent. ``on_probe`` is called
     before every probe (the search's cancellation check raises from it); ``loss0``, the loss at
-    ``pose`` at the probes' stage, when the caller has it already."""
+    ``pose`` at the probes' stage and ``floor0`` its floor, when the caller has them already.
+    The loss must rise by ``rise`` times its excess over the floor (plus ``rise_abs``)."""
     base = pose.vector()
     spent = 0
-    if loss0 is None:
-        loss0, spent = problem.loss(pose, params.stage), 1
-    limit = loss0 * (1.0 + params.rise) + params.rise_abs
+    if loss0 is None or floor0 is None:
+        rendered = problem.render(pose, params.stage)
+        loss0, _ = problem.level(params.stage).loss.evaluate(rendered)
+        floor0, spent = problem.level(params.stage).loss.floor(rendered), 1
+    limit = floor0 + (loss0 - floor0) * (1.0 + params.rise) + params.rise_abs
     out = np.zeros(6)
     for axis in range(6):
         rotation = axis >= 3
@@ -205,10 +212,12 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     agreement, per_class = label_agreement(rendered, problem.target,
                                            problem.params.loss.crop_top)
     loss_full, coverage = problem.level(-1).loss.evaluate(rendered)
+    floor_full = problem.level(-1).loss.floor(rendered)
     at_full = problem.stages[qp.stage].scale == problem.stages[-1].scale
     bounds = (*sp.bound_xyz, sp.bound_roll_deg, sp.bound_pitch_deg, sp.bound_yaw_deg)
     unc, spent = axis_uncertainty(problem, pose, qp, bounds, on_probe,
-                                  loss_full if at_full else None)
+                                  loss_full if at_full else None,
+                                  floor_full if at_full else None)
     loose = tuple(AXES[i] for i in range(6)
                   if unc[i] > (qp.max_translation_m if i < 3 else qp.max_rotation_deg))
     if not sp.free_roll:
@@ -219,7 +228,7 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     dr = [rotation_error_deg(r.pose, pose) for r in best]
     loss_best = min((r.loss for r in runs if r.refined), default=math.inf)
     rivals = [r for r in runs if r.refined and r.basin != 0
-              and r.loss <= loss_best * (1.0 + qp.rival_margin)
+              and r.loss <= loss_best + qp.rival_margin * max(loss_best - floor_full, 0.0)
               and (translation_error(r.pose, pose) > qp.disagree_translation_m
                    or rotation_error_deg(r.pose, pose) > qp.disagree_rotation_deg)]
     if agreement < qp.min_agreement:
