@@ -105,7 +105,7 @@ def builder(tmp_path_factory):
             "queue_size": 5, "time_jump": 1.0, "jump_confirm": 3,
             **reliable_overrides("/scan", "/pose", depth=50)})
         feed = Feed(graph)
-        proc.wait_for_log("ready", 30)
+        proc.wait_for_log("ready", 120)
         spin_until(feed.executor, lambda: feed.scans.get_subscription_count() > 0
                    and feed.poses.get_subscription_count() > 0, 30, "the map builder to subscribe")
         # The first messages can go before the builder's side of the match is made (a publisher

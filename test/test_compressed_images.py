@@ -365,7 +365,7 @@ def test_compressed_scene_bag_replays_to_a_calibration(graph, client, demo_scene
     overlays = []
     node.create_subscription(Image, "/calibration/overlay", overlays.append, qos.latched())
     calibrate = CalibrateClient(node)
-    cal.wait_for_log("ready", 30)
+    cal.wait_for_log("ready", 120)
     calibrate.wait_for_server(20)
     t_start = time.monotonic()
     player = graph.start_node("bag_player", params={"bag": str(bag),

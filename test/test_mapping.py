@@ -626,7 +626,7 @@ def test_map_builder_node_says_when_it_falls_behind(tmp_path):
             scans = node.create_publisher(PointCloud2, "/scan", qos.reliable(20))
             poses = node.create_publisher(PoseStamped, "/pose", qos.reliable(50))
             watcher = DiagnosticsWatcher(node)
-            proc.wait_for_log("ready", 60)
+            proc.wait_for_log("ready", 120)
             spin_until(executor, lambda: scans.get_subscription_count() > 0
                        and poses.get_subscription_count() > 0, 30, "the map builder")
             world = make_world(length=12.0, seed=0)

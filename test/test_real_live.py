@@ -99,7 +99,7 @@ def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path, exported):
         watcher = DiagnosticsWatcher(node)
         client = CalibrateClient(node)
         for proc in (segmenter, builder, cal):
-            proc.wait_for_log("ready", 60)
+            proc.wait_for_log("ready", 120)
         client.wait_for_server(30)
         # the bag's own /camera/labels has no subscriber (the calibrator takes the live ones):
         # a short wait, the other topics' subscribers are up already

@@ -392,8 +392,8 @@ def test_live_pipeline_calibrates_the_demo_scene(graph, listener, demo_scene, tm
     static = listener.subscribe(TFMessage, "/tf_static", qos.latched())
     overlays = listener.subscribe(Image, "/calibration/overlay", qos.latched())
     client = CalibrateClient(listener.node)
-    builder.wait_for_log("ready", 30)
-    cal.wait_for_log("ready", 30)
+    builder.wait_for_log("ready", 120)
+    cal.wait_for_log("ready", 120)
     client.wait_for_server(30)
 
     scans = bag_message_count(demo_scene / "bag", "/lidar/points")
@@ -468,7 +468,7 @@ def test_map_builder_starts_over_when_time_jumps_back(graph, listener, tmp_path)
         **reliable_overrides("/test/points", "/test/odom")},
         remap={"scan": "/test/points", "odom": "/test/odom"})
     watcher = DiagnosticsWatcher(listener.node)
-    builder.wait_for_log("ready", 30)
+    builder.wait_for_log("ready", 120)
 
     def played_once(expected_resets: int) -> bool:
         d = watcher.get("map_builder")

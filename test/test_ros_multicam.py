@@ -24,7 +24,7 @@ from test_ros_calibrator import assert_empty_transform, assert_quality  # noqa: 
 pytestmark = pytest.mark.ros
 
 #: Cheap, but enough to land within a few cm on this clean scene (about 4 s a goal).
-ENGINE = {"engine.schedule.max_evaluations": [60, 30, 30],
+ENGINE = {"engine.schedule.max_evaluations": [120, 40, 30],
           "engine.schedule.restarts": [0, 0, 0], "engine.verification.starts": 0}
 STAMP = 1700000002.5  # the label images' stamp
 
