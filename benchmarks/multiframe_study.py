@@ -130,6 +130,9 @@ def run(args: argparse.Namespace) -> None:
                     translation_cm=round(translation_error(res.pose, truth) * 100, 2),
                     rotation_deg=round(rotation_error_deg(res.pose, truth), 4),
                     verdict=res.quality.verdict if res.quality else "",
+                    reason=res.quality.reason if res.quality else "",
+                    uncertainty=([*res.quality.uncertainty_translation_m,
+                                  *res.quality.uncertainty_rpy_deg] if res.quality else None),
                     loss_value=round(res.loss, 6), evaluations=res.evaluations,
                     agreement=[round(c.agreement, 3) for c in cal.frames])
             except CalibrationFailed as exc:

@@ -109,13 +109,13 @@ def test_loss_parameters_are_checked():
         replace(LossParams(), confusion_weight=2.0)
 
 
-def test_the_real_labels_parameter_file_selects_the_likelihood():
+def test_the_default_is_the_likelihood_and_the_paper_loss_file_selects_l2():
     from pathlib import Path
 
     from semcal_ros.engine.params import CalibrationParams
 
-    path = Path(__file__).resolve().parents[1] / "config" / "real_labels.yaml"
+    assert CalibrationParams().loss.kind == "likelihood"
+    path = Path(__file__).resolve().parents[1] / "config" / "paper_loss.yaml"
     params = CalibrationParams.from_file(str(path))
-    assert params.loss.kind == "likelihood"
-    assert params.loss.prior_weight == LossParams().prior_weight
+    assert params.loss.kind == "l2" and params.loss.boundary_band_px == 4.0
     assert params.search == CalibrationParams().search  # nothing else changed
