@@ -61,8 +61,9 @@ class LossParams:
     kind: str = "likelihood"
     # "likelihood" (the mean log-likelihood of the labels under a confusion matrix estimated at
     # the pose, shrunk towards a prior that favours the diagonal and the usual confusions), "l2"
-    # (squared colour distance, the paper's), "huber", "mi" (mutual information) or "balanced" (every mismatch costs alike, each label class weighted by the inverse of its
-    # share: a class-matched divergence balanced over classes, after Chen & Sun 2026)
+    # (squared colour distance, the paper's), "huber", "mi" (mutual information) or "balanced"
+    # (every mismatch costs alike, each label class weighted by the inverse of its share: a
+    # class-matched divergence balanced over classes, after Chen & Sun 2026)
     huber_delta: float = 0.3
     crop_top: float = 0.0  # fraction of image rows, from the top, left out of the loss
     min_coverage: float = 0.05  # fewer rendered pixels over the target's non-sky area = degenerate
