@@ -11,7 +11,8 @@ sidewalk (the paper's KITTI set-up); a third counts coarse classes: ground (road
 terrain), building, vegetation (trunk included), pole (traffic signs on it included) and vehicle
 (car and other vehicles), over the reference points of those five groups. Times: the median
 of ``--repeats`` calls per scan after a warm-up call (numba/Open3D/Patchwork++ set-up is not
-counted); the load average is printed.
+counted), wall and CPU (``time.process_time``: all threads of the process); the load average
+is printed.
 """
 
 from __future__ import annotations
@@ -78,24 +79,27 @@ def main() -> int:
     from semcal_ros.engine.labels import LabelMapping
     from semcal_ros.segmentation.geometric import label_scan, point_agreement
 
-    preds, refs, times, sizes = [], [], [], []
+    preds, refs, times, cpus, sizes = [], [], [], [], []
     for i in (int(s) for s in args.scans.split(",")):
         cloud = kitti.read_scan(args.data / "velodyne" / f"{i:06d}.bin")
         ref = np.fromfile(args.data / "labels" / f"{i:06d}.label", np.uint32) & 0xFFFF
         intensity = cloud.extra.get("intensity")
         label_scan(cloud.xyz, intensity)  # warm-up
-        runs = []
+        runs, cpu = [], []
         for _ in range(args.repeats):
-            start = time.perf_counter()
+            start, cpu_start = time.perf_counter(), time.process_time()
             pred = label_scan(cloud.xyz, intensity)
             runs.append(time.perf_counter() - start)
+            cpu.append(time.process_time() - cpu_start)
         keep = cloud.xyz[:, 0] < args.max_x if args.max_x is not None else slice(None)
         preds.append(pred[keep])
         refs.append(ref[keep])
         times.append(statistics.median(runs))
+        cpus.append(statistics.median(cpu))
         sizes.append(len(pred))
-        print(f"scan {i:06d}: {len(pred)} points, {1e3 * times[-1]:.0f} ms (median of "
-              f"{args.repeats}), load {os.getloadavg()[0]:.2f}; overall "
+        print(f"scan {i:06d}: {len(pred)} points, {1e3 * times[-1]:.0f} ms wall, "
+              f"{1e3 * cpus[-1]:.0f} ms CPU (medians of {args.repeats}), load "
+              f"{os.getloadavg()[0]:.2f}; overall "
               f"{100 * point_agreement(pred, ref).overall:.1f} %")
     pred, ref = np.concatenate(preds), np.concatenate(refs)
     print(f"\nKITTI 00 scans {args.scans}: aligned classes, road / sidewalk / terrain apart")
@@ -106,7 +110,8 @@ def main() -> int:
                                    "traffic sign", "car")).table())
     print("\ncoarse classes (ground, building, vegetation, pole, vehicle)")
     print(coarse_table(pred, ref))
-    print(f"\ntime per scan: {', '.join(f'{1e3 * t:.0f}' for t in times)} ms for "
+    print(f"\ntime per scan: {', '.join(f'{1e3 * t:.0f}' for t in times)} ms wall, "
+          f"{', '.join(f'{1e3 * t:.0f}' for t in cpus)} ms CPU (all threads) for "
           f"{', '.join(str(n) for n in sizes)} points; load {os.getloadavg()}")
 
     if args.scene:
