@@ -150,3 +150,16 @@ def test_precompile_leaves_the_labeller_nothing_to_compile(tmp_path):
         assert lines[name].endswith("misses 0"), out
         assert not lines[name].startswith("hits 0"), out
     assert int(lines["labelled"]) > 1000, out
+
+
+def test_smoothed_best_is_the_argmax_of_the_neighbours_mean():
+    from semcal_ros.segmentation.forest import smoothed_best
+
+    rng = np.random.default_rng(3)
+    shares = rng.random((200, 11)).astype(np.float32)
+    neighbours = rng.integers(0, 200, (200, 10)).astype(np.int64)
+    for k in (1, 4, 10):
+        best, top = smoothed_best(shares, neighbours, k)
+        mean = shares[neighbours[:, :k]].mean(axis=1)
+        np.testing.assert_array_equal(best, mean.argmax(axis=1))
+        np.testing.assert_allclose(top, mean.max(axis=1), rtol=1e-5)
