@@ -325,8 +325,11 @@ def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
     index, feats = scan_features(xyz, intensity, params)
     forest = load_model()
     shares = forest.predict_proba(feats.values)
-    k = max(int(params.smoothing_neighbours), 1)
-    best, top = smoothed_best(shares, feats.neighbours, min(k, feats.neighbours.shape[1]))
+    k = min(int(params.smoothing_neighbours), feats.neighbours.shape[1])
+    if k > 1:
+        best, top = smoothed_best(shares, feats.neighbours, k)
+    else:
+        best, top = shares.argmax(axis=1), shares.max(axis=1)
     voxel_label = forest.classes[best]
     if params.min_share > 0:
         voxel_label = np.where(top >= params.min_share, voxel_label, 0)
