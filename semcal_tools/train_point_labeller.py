@@ -215,8 +215,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kitti-weight", type=float, default=1.0,
                     help="weight of the SemanticKITTI samples relative to all synthetic ones")
     ap.add_argument("--cap", type=int, default=20_000, help="samples per class and source")
-    ap.add_argument("--trees", type=int, default=32)
-    ap.add_argument("--depth", type=int, default=16)
+    ap.add_argument("--trees", type=int, default=20)
+    ap.add_argument("--depth", type=int, default=18)
     ap.add_argument("--min-leaf", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)

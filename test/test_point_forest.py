@@ -100,3 +100,66 @@ def test_closed_form_eigen_features_match_numpy():
         np.testing.assert_allclose(feats[:, offset + 4], np.abs(vectors[:, 2, 2]), atol=1e-3)
         np.testing.assert_allclose(feats[:, offset + 5], np.sqrt(l1), rtol=1e-4)
     assert idx.shape == (400, 8)
+
+
+def test_a_node_with_two_parents_is_refused_in_one_line():
+    forest = two_trees()
+    # node 2's right child is the root: a cycle, which the walk would never leave
+    right = forest.right.copy()
+    right[2] = 0
+    bad = Forest(forest.feature, forest.threshold, forest.left, right, forest.roots,
+                 forest.leaf_values, forest.classes, forest.feature_names)
+    with pytest.raises(ValueError, match="two parents"):
+        bad.predict_proba(np.zeros((2, 2), np.float32))
+
+
+_FIRST_RUN = """
+import sys
+from semcal_ros.segmentation import forest, geometric, point_features
+from semcal_ros.segmentation.geometric import label_scan
+from semcal_tools.precompile import labeller_scan
+labels = label_scan(labeller_scan())
+kernels = {"_predict": forest._predict, "_relayout": forest._relayout,
+           "smoothed_best": forest.smoothed_best, "_kerb_steps": geometric._kerb_steps,
+           "_eigen_features": point_features._eigen_features}
+for name, kernel in kernels.items():
+    stats = kernel.stats
+    print(name, "hits", sum(stats.cache_hits.values()), "misses", sum(stats.cache_misses.values()))
+print("labelled", int((labels > 0).sum()))
+"""
+
+
+def test_precompile_leaves_the_labeller_nothing_to_compile(tmp_path):
+    """After ``semcal_tools.precompile``'s labeller step, a user's first label_scan loads every
+    kernel from numba's cache (a fresh cache directory, two processes)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+           "PYTHONPATH": f"{repo}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    subprocess.run([sys.executable, "-c",
+                    "from semcal_tools.precompile import compile_labeller; compile_labeller()"],
+                   env=env, check=True, timeout=600)
+    out = subprocess.run([sys.executable, "-c", _FIRST_RUN], env=env, check=True,
+                         capture_output=True, text=True, timeout=600).stdout
+    lines = dict(line.split(" ", 1) for line in out.strip().splitlines())
+    for name in ("_predict", "_relayout", "smoothed_best", "_kerb_steps", "_eigen_features"):
+        assert lines[name].endswith("misses 0"), out
+        assert not lines[name].startswith("hits 0"), out
+    assert int(lines["labelled"]) > 1000, out
+
+
+def test_smoothed_best_is_the_argmax_of_the_neighbours_mean():
+    from semcal_ros.segmentation.forest import smoothed_best
+
+    rng = np.random.default_rng(3)
+    shares = rng.random((200, 11)).astype(np.float32)
+    neighbours = rng.integers(0, 200, (200, 10)).astype(np.int64)
+    for k in (1, 4, 10):
+        best, top = smoothed_best(shares, neighbours, k)
+        mean = shares[neighbours[:, :k]].mean(axis=1)
+        np.testing.assert_array_equal(best, mean.argmax(axis=1))
+        np.testing.assert_allclose(top, mean.max(axis=1), rtol=1e-5)

@@ -6,10 +6,13 @@ are stored in flat arrays: ``feature`` (-1 at a leaf), ``threshold`` (go left wh
 is <= it), ``left`` / ``right`` child indices (at a leaf ``left`` is the row of
 ``leaf_values``), ``roots`` the first node of each tree, ``leaf_values`` the class shares of each
 leaf (uint8, 255 = all). A forest's class probability is the mean of its trees' leaf shares.
+At load the nodes are re-ordered for the walk (children adjacent, breadth first), and the
+walk goes one tree at a time over blocks of voxels, which keeps a tree in the cache.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,26 +30,93 @@ _ARRAYS = ("feature", "threshold", "left", "right", "roots", "leaf_values", "cla
            "feature_names")
 
 
+@nb.njit(cache=True, nogil=True)
+def _relayout(roots, feature, threshold, left, right):  # pragma: no cover - numba
+    """The trees in breadth-first order with each node's two children adjacent: a node's
+    ``child`` is its left child (``child + 1`` the right one) or, at a leaf, its leaf row.
+    The walk then needs two arrays and no branch on the comparison (see :func:`_predict`)."""
+    n = feature.shape[0]
+    new_feature = np.empty(n, np.int32)
+    new_threshold = np.empty(n, np.float32)
+    child = np.empty(n, np.int32)
+    new_roots = np.empty(roots.shape[0], np.int32)
+    queue = np.empty(n, np.int64)  # old node ids in their new order
+    tail = 0
+    for t in range(roots.shape[0]):
+        head = tail
+        new_roots[t] = head
+        queue[tail] = roots[t]
+        tail += 1
+        while head < tail:
+            old = queue[head]
+            new_feature[head] = feature[old]
+            new_threshold[head] = threshold[old]
+            if feature[old] >= 0:
+                if tail + 2 > n:  # a node reached twice: not a forest of trees
+                    raise ValueError("forest arrays are inconsistent (a node has two parents)")
+                child[head] = tail
+                queue[tail] = left[old]
+                queue[tail + 1] = right[old]
+                tail += 2
+            else:
+                child[head] = left[old]
+            head += 1
+    return new_roots, new_feature, new_threshold, child
+
+
+#: Voxels per block of the compiled walk: one tree at a time over a block keeps that tree's
+#: nodes in the core's cache (walking all trees for one voxel at a time touches the whole
+#: forest, 4.7 MB, per voxel: 1.5x slower on KITTI).
+_BLOCK = 512
+
+
 @nb.njit(parallel=True, cache=True, nogil=True)
-def _predict(x, roots, feature, threshold, left, right, leaf_values):  # pragma: no cover - numba
+def _predict(x, roots, feature, threshold, child, leaf_values):  # pragma: no cover - numba
     n, c = x.shape[0], leaf_values.shape[1]
     out = np.zeros((n, c), np.float32)
-    for i in nb.prange(n):
-        for t in range(roots.shape[0]):
-            node = roots[t]
-            while feature[node] >= 0:
-                if x[i, feature[node]] <= threshold[node]:
-                    node = left[node]
-                else:
-                    node = right[node]
-            row = left[node]
-            for k in range(c):
-                out[i, k] += leaf_values[row, k]
+    blocks = (n + _BLOCK - 1) // _BLOCK
     scale = np.float32(1.0 / (255.0 * roots.shape[0]))
-    for i in nb.prange(n):
-        for k in range(c):
-            out[i, k] *= scale
+    for b in nb.prange(blocks):
+        lo = b * _BLOCK
+        hi = min(n, lo + _BLOCK)
+        acc = np.zeros((hi - lo, c), np.int32)
+        for t in range(roots.shape[0]):
+            root = roots[t]
+            for i in range(lo, hi):
+                node = root
+                f = feature[node]
+                while f >= 0:
+                    node = child[node] + (1 if x[i, f] > threshold[node] else 0)
+                    f = feature[node]
+                row = child[node]
+                for k in range(c):
+                    acc[i - lo, k] += leaf_values[row, k]
+        for i in range(lo, hi):
+            for k in range(c):
+                out[i, k] = acc[i - lo, k] * scale
     return out
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def smoothed_best(shares, neighbours, k):  # pragma: no cover - numba
+    """(best class column, its share) of each row after averaging the class shares over the
+    row's first ``k`` ``neighbours`` (itself included): one pass, no (V, k, C) temporary."""
+    n, c = shares.shape
+    best = np.zeros(n, np.int64)
+    top = np.zeros(n, np.float32)
+    for i in nb.prange(n):
+        acc = np.zeros(c, np.float32)
+        for j in range(k):
+            row = neighbours[i, j]
+            for m in range(c):
+                acc[m] += shares[row, m]
+        b = 0
+        for m in range(1, c):
+            if acc[m] > acc[b]:
+                b = m
+        best[i] = b
+        top[i] = acc[b] / k
+    return best, top
 
 
 @dataclass(frozen=True)
@@ -105,8 +175,13 @@ class Forest:
         x = np.ascontiguousarray(x, np.float32)
         if x.ndim != 2 or x.shape[1] != len(self.feature_names):
             raise ValueError(f"forest input must be (n, {len(self.feature_names)}), got {x.shape}")
-        return _predict(x, self.roots, self.feature, self.threshold, self.left, self.right,
-                        self.leaf_values)
+        roots, feature, threshold, child = self._walk_layout
+        return _predict(x, roots, feature, threshold, child, self.leaf_values)
+
+    @functools.cached_property
+    def _walk_layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The nodes re-ordered for :func:`_predict` (once per forest, a few ms)."""
+        return _relayout(self.roots, self.feature, self.threshold, self.left, self.right)
 
     def save(self, path: str | Path) -> None:
         np.savez_compressed(path, feature=self.feature, threshold=self.threshold,

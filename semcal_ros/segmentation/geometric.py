@@ -41,11 +41,12 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 from scipy import ndimage
 
 from semcal_ros.engine.labels import KITTI_ID
-from semcal_ros.segmentation.forest import Forest
+from semcal_ros.segmentation.forest import Forest, smoothed_best
 from semcal_ros.segmentation.point_features import FEATURE_NAMES, VoxelFeatures, voxel_features
 
 ROAD, SIDEWALK, TERRAIN = KITTI_ID["road"], KITTI_ID["sidewalk"], KITTI_ID["terrain"]
@@ -205,6 +206,26 @@ def estimate_ground_level(xyz: np.ndarray, params: GeometricParams) -> float:
 
 
 # --- ground classes ---------------------------------------------------------------------------
+@nb.njit(cache=True, nogil=True)
+def _kerb_steps(zmean, kerb_step):  # pragma: no cover - numba
+    """Kerbs: occupied cells (height not NaN) with a height step above ``kerb_step`` to an
+    occupied 4-neighbour (the grid wraps at its edges, as ``np.roll`` did; its edge rows are
+    empty by construction)."""
+    n0, n1 = zmean.shape
+    step = np.zeros((n0, n1), np.bool_)
+    for i in range(n0):
+        for j in range(n1):
+            z = zmean[i, j]
+            if np.isnan(z):
+                continue
+            for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+                other = zmean[(i + di) % n0, (j + dj) % n1]
+                if not np.isnan(other) and abs(z - other) > kerb_step:
+                    step[i, j] = True
+                    break
+    return step
+
+
 def _ground_classes(xyz: np.ndarray, ground_level: float, params: GeometricParams) -> np.ndarray:
     """Road / sidewalk / terrain for ground points (see the module doc, step 4)."""
     radius = float(min(params.max_range, np.abs(xyz[:, :2]).max() + params.ground_cell))
@@ -214,13 +235,7 @@ def _ground_classes(xyz: np.ndarray, ground_level: float, params: GeometricParam
     z2, _ = grid.mean(idx, xyz[:, 2] ** 2)
     spread = np.sqrt(np.maximum(z2 - zmean ** 2, 0.0))
     occupied = count > 0
-    # kerbs: a step to any 4-neighbour
-    step = np.zeros_like(occupied)
-    for axis in (0, 1):
-        for shift in (1, -1):
-            other = np.roll(zmean, shift, axis=axis)
-            both = occupied & ~np.isnan(other)
-            step |= both & (np.abs(np.nan_to_num(zmean - other)) > params.kerb_step)
+    step = _kerb_steps(zmean, params.kerb_step)
     free = occupied & ~step
     comp, ncomp = ndimage.label(free, structure=np.ones((3, 3)))
     centre = (np.arange(grid.n) + 0.5) * grid.cell - radius
@@ -310,13 +325,14 @@ def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
     index, feats = scan_features(xyz, intensity, params)
     forest = load_model()
     shares = forest.predict_proba(feats.values)
-    k = int(params.smoothing_neighbours)
+    k = min(int(params.smoothing_neighbours), feats.neighbours.shape[1])
     if k > 1:
-        shares = shares[feats.neighbours[:, :k]].mean(axis=1)
-    best = shares.argmax(axis=1)
+        best, top = smoothed_best(shares, feats.neighbours, k)
+    else:
+        best, top = shares.argmax(axis=1), shares.max(axis=1)
     voxel_label = forest.classes[best]
     if params.min_share > 0:
-        voxel_label = np.where(shares.max(axis=1) >= params.min_share, voxel_label, 0)
+        voxel_label = np.where(top >= params.min_share, voxel_label, 0)
     labels = np.zeros(len(xyz), np.uint16)
     labels[index] = voxel_label[feats.inverse]
     return labels

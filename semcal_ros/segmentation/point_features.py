@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
+import small_gicp
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from semcal_ros.segmentation import forest as _forest  # noqa: F401  (numba's threading set-up)
 
@@ -178,14 +178,26 @@ def _eigen_features(centroid, idx, ks):  # pragma: no cover - numba
     return out
 
 
+def nearest_voxels(centroid: np.ndarray, k: int) -> np.ndarray:
+    """(V, k) int64: each voxel's k nearest voxels (itself first), nearest first.
+
+    small_gicp's k-d tree: the same neighbours as scipy's cKDTree in half its time on a KITTI
+    scan (118 vs 216 ms CPU for 32 neighbours of 32k voxels, one thread; the 2-thread query
+    costs more CPU on 2 loaded cores and is not used)."""
+    pts = np.ascontiguousarray(centroid, np.float64)
+    if len(pts) < 2:
+        return np.zeros((len(pts), k), np.int64)
+    idx, _ = small_gicp.KdTree(pts, 1).batch_knn_search(pts, k, 1)
+    return np.ascontiguousarray(idx, np.int64).reshape(len(pts), k)
+
+
 def _neighbourhoods(centroid: np.ndarray, params: FeatureParams
                     ) -> tuple[np.ndarray, np.ndarray]:
     """((V, 14) eigen features at the small and the large scale, (V, k_small) neighbours)."""
     n = len(centroid)
     k_large = min(params.knn_large, n)
     k_small = min(params.knn_small, n)
-    _, idx = cKDTree(centroid).query(centroid, k=k_large, workers=-1)
-    idx = np.ascontiguousarray(idx.reshape(n, k_large), np.int64)
+    idx = nearest_voxels(centroid, k_large)
     feats = _eigen_features(np.ascontiguousarray(centroid, np.float64), idx,
                             np.array([k_small, k_large], np.int64))
     return feats, idx[:, :k_small]
