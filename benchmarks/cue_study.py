@@ -14,7 +14,8 @@ One record per run (JSON lines, appended): error, loss, verdict, wall and CPU se
     .venv/bin/python benchmarks/cue_study.py --table cues.jsonl
 
 Settings (comma separated): ``lik`` the likelihood loss without cues; ``_eW`` adds the depth-edge
-cue with ``cues.edge_weight`` W; ``_dG`` its ``edge_decay`` G, ``_jJ`` its ``edge_min_jump`` J.
+cue with ``cues.edge_weight`` W; ``_dG`` its ``edge_decay`` G, ``_jJ`` its ``edge_min_jump`` J,
+``_iI`` its ``edge_inset`` I.
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ def setting_params(name: str, base):
             cues = replace(cues, edge_decay=float(m[1:]))
         elif m.startswith("j"):
             cues = replace(cues, edge_min_jump=float(m[1:]))
+        elif m.startswith("i"):
+            cues = replace(cues, edge_inset=float(m[1:]))
         else:
             raise ValueError(f"unknown modifier '{m}' in '{name}'")
     return replace(base, loss=loss, cues=cues)

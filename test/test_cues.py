@@ -67,10 +67,11 @@ def test_edge_kernel_equals_its_definition(keys_at_truth):
     rng = np.random.default_rng(4)
     field = rng.random(keys_at_truth.shape).astype(np.float32)
     h, w = keys_at_truth.shape
-    for start_row, jump in ((0, 0.5), (h // 3, 0.2), (0, 1.0)):
-        ref = edge_terms_reference(keys_at_truth, field, start_row, jump)
+    for start_row, jump, inset, kmax in ((0, 0.5, 0.0, 0), (h // 3, 0.2, 20.0, 5),
+                                         (0, 1.0, 40.0, 3)):
+        ref = edge_terms_reference(keys_at_truth, field, start_row, jump, inset, kmax)
         got = edge_terms(np.ascontiguousarray(keys_at_truth).ravel(), w, field.ravel(),
-                         start_row * w, jump)
+                         start_row * w, jump, inset, kmax)
         assert ref[1] > 0
         np.testing.assert_allclose(got, ref, rtol=1e-9)
 
@@ -113,7 +114,8 @@ def test_off_costs_nothing_and_on_needs_the_image(world, target):
 
 
 def test_edge_term_is_lowest_at_the_outlines_and_joins_every_loss(world, target, outline_image):
-    params = replace(CalibrationParams(), cues=CueParams(edge_weight=WEIGHT))
+    # the image's lines are the render's own outlines (discs included): scored where found
+    params = replace(CalibrationParams(), cues=CueParams(edge_weight=WEIGHT, edge_inset=0.0))
     problem = Problem(world, target, camera(), GROUND_TRUTH.translation, params,
                       image=outline_image)
     plain = Problem(None, target, camera(), GROUND_TRUTH.translation, prepared=problem.pmap)

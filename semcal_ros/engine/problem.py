@@ -129,7 +129,8 @@ class Problem:
             return Level(scale, setup, loss)
         field = self.edges[off::scale, off::scale][:cam.height, :cam.width]
         edge = EdgeCue(field, self.params.cues,
-                       int(round(self.params.loss.crop_top * cam.height)))
+                       int(round(self.params.loss.crop_top * cam.height)), setup.splat_lambda,
+                       setup.radius_max)
         return Level(scale, setup, CuedLoss(loss, edge, self.params.cues.edge_weight,
                                             self._keys_of))
 
