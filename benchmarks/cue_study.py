@@ -103,6 +103,44 @@ def run_scene(folder: Path, settings: list[str], runs: int, seed: int, out: Path
                   f"load {rec['load']:.1f}", flush=True)
 
 
+def cost(folder: Path, settings: list[str], repeats: int) -> None:
+    """CPU ms per loss evaluation (one render + the loss, each stage) per setting, at poses
+    around the truth: what a cue adds to every step of the search."""
+    import cv2
+
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.pose import Pose
+    from semcal_ros.engine.problem import Problem
+    from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
+    from semcal_ros.io.ply import read_ply
+
+    cloud = read_ply(folder / "map.ply")
+    labels = read_label_image(folder / "labels.png")
+    image = cv2.imread(str(folder / "image.png"), cv2.IMREAD_COLOR)
+    camera = read_camera_info(folder / "camera_info.yaml")
+    truth = read_pose(folder / "ground_truth.yaml")
+    rng = np.random.default_rng(0)
+    poses = [Pose.from_vector(truth.vector() + rng.uniform(-1, 1, 6) * [0.5, 0.5, 0.5, 0, 0.01,
+                                                                        0.01])
+             for _ in range(repeats)]
+    base = CalibrationParams.from_file(folder / "calibrator.yaml")
+    for name in settings:
+        c0 = time.process_time()
+        problem = Problem(cloud, labels, camera, truth.translation, setting_params(name, base),
+                          image=image)
+        prep = time.process_time() - c0
+        cells = []
+        for stage in range(len(problem.stages)):
+            problem.loss(poses[0], stage)  # compiled and warm
+            c0 = time.process_time()
+            for pose in poses:
+                problem.loss(pose, stage)
+            cells.append(f"1/{problem.stages[stage].scale}: "
+                         f"{(time.process_time() - c0) / repeats * 1e3:.2f} ms")
+        print(f"{folder.name} {name:12} prepare {prep:.2f} s CPU; per evaluation "
+              + ", ".join(cells) + f" (load {os.getloadavg()[0]:.1f})", flush=True)
+
+
 def source_of(scene: str) -> str:
     for prefix, name in (("kitti00_", "KITTI 00 single frames"), ("object_", "KITTI object"),
                          ("pjlab_", "PJLab")):
@@ -139,7 +177,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("cues.jsonl"))
     ap.add_argument("--table", nargs="*", type=Path, help="print the table of these record files")
+    ap.add_argument("--cost", type=int, default=0, metavar="N",
+                    help="instead: CPU ms per loss evaluation over N poses, per setting")
     args = ap.parse_args(argv)
+    if args.cost:
+        for folder in args.scenes:
+            cost(folder, args.settings.split(","), args.cost)
+        return 0
     if args.table is not None:
         records = [json.loads(line) for p in args.table for line in p.read_text().splitlines()
                    if line.strip()]
