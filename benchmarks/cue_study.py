@@ -153,8 +153,8 @@ def table(records: list[dict]) -> str:
     """Per source and setting: runs, median error, worst, median CPU s per calibration."""
     settings = list(dict.fromkeys(r["setting"] for r in records))
     sources = list(dict.fromkeys(source_of(r["scene"]) for r in records))
-    lines = ["| source | setting | runs | median error | worst | median CPU s | median wall s |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| source | setting | runs | median error | worst | good (of them > 30 cm / 0.5 deg) "
+             "| median CPU s | median wall s |", "|---|---|---|---|---|---|---|---|"]
     for src in sources:
         for s in settings:
             g = [r for r in records if r["setting"] == s and source_of(r["scene"]) == src]
@@ -162,8 +162,11 @@ def table(records: list[dict]) -> str:
                 continue
             t = np.array([r["t_cm"] for r in g])
             a = np.array([r["r_deg"] for r in g])
+            good = [r for r in g if r["verdict"] == "good"]
+            bad = sum(r["t_cm"] > 30 or r["r_deg"] > 0.5 for r in good)
             lines.append(f"| {src} | {s} | {len(g)} | {np.median(t):.1f} cm / "
                          f"{np.median(a):.2f} deg | {t.max():.0f} cm / {a.max():.2f} deg | "
+                         f"{len(good)} ({bad}) | "
                          f"{np.median([r['cpu'] for r in g]):.1f} | "
                          f"{np.median([r['seconds'] for r in g]):.1f} |")
     return "\n".join(lines)
