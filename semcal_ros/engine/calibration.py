@@ -91,7 +91,7 @@ def calibrate_and_draw(map_cloud: LabelledCloud | None, target: np.ndarray, came
     preparing the problem. A failure to draw leaves the result standing (``overlay_error``)."""
     t0 = time.perf_counter()
     problem = Problem(map_cloud, target, camera, initial.translation, params, mapping,
-                      prepared=prepared, probabilities=probabilities)
+                      prepared=prepared, probabilities=probabilities, image=background)
     result = solve(problem, initial, seed, progress, should_stop)
     result.seconds = time.perf_counter() - t0
     refused = validation.result_problems(float(result.loss), problem.params)

@@ -50,7 +50,7 @@ class Frame:
     def problem(self, center: np.ndarray, mapping: LabelMapping | None = None) -> Problem:
         """The frame's problem, its map cropped around ``center`` (the initial position)."""
         return Problem(self.map_cloud, self.labels, self.camera, center, self.params, mapping,
-                       probabilities=self.probabilities)
+                       probabilities=self.probabilities, image=self.background)
 
 
 # --- several frames of one rig ---------------------------------------------------------------

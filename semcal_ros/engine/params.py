@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from semcal_ros.engine.config import apply_flat, check_finite, check_rule, load_node_params
+from semcal_ros.engine.cues import CueParams
 from semcal_ros.engine.loss import LossParams
 from semcal_ros.engine.quality import QualityParams
 from semcal_ros.engine.render.view import RenderParams
@@ -177,6 +178,7 @@ class CalibrationParams:
     schedule: ScheduleParams = field(default_factory=ScheduleParams)
     verification: VerificationParams = field(default_factory=VerificationParams)
     quality: QualityParams = field(default_factory=QualityParams)
+    cues: CueParams = field(default_factory=CueParams)  # terms beside the labels (engine/cues.py)
 
     @classmethod
     def from_file(cls, path: str | Path | None, node: str = "calibrator",

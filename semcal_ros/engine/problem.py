@@ -16,12 +16,13 @@ import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.cues import CuedLoss, EdgeCue, edge_field
 from semcal_ros.engine.labels import INVALID, LabelMapping
 from semcal_ros.engine.loss import LabelLoss, aligned_probabilities
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render import PreparedMap, ViewSetup, prepare_map, view_setup
-from semcal_ros.engine.render.fast import render
+from semcal_ros.engine.render.fast import render, render_with_keys
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class Level:
 
     scale: int
     setup: ViewSetup
-    loss: LabelLoss
+    loss: LabelLoss | CuedLoss  # CuedLoss only with a cue on (engine/cues.py)
 
 
 def mapping_for(params: CalibrationParams, mapping: LabelMapping | None = None) -> LabelMapping:
@@ -60,12 +61,15 @@ class Problem:
     instead of preparing ``map_cloud`` again (which may then be None); ``center`` is then ignored.
     ``probabilities`` (H, W, 19): the segmenter's softmax over Cityscapes trainIds beside the
     labels (``DIR/probabilities.npz``); the loss then takes the expected cost under them.
+    ``image``: the camera image (grey or colour, the labels' size), needed only by the cues
+    (``params.cues``, engine/cues.py).
     """
 
     def __init__(self, map_cloud: LabelledCloud | None, target: np.ndarray, camera: CameraModel,
                  center: np.ndarray, params: CalibrationParams | None = None,
                  mapping: LabelMapping | None = None, prepared: PreparedMap | None = None,
-                 probabilities: np.ndarray | None = None) -> None:
+                 probabilities: np.ndarray | None = None, image: np.ndarray | None = None
+                 ) -> None:
         self.params = params or CalibrationParams()
         self.mapping = mapping_for(self.params, mapping)
         self.camera = camera
@@ -98,6 +102,14 @@ class Problem:
             raise ValueError("label image has no pixel of a class the map can match")
         self.probabilities = (None if probabilities is None else aligned_probabilities(
             probabilities, self.mapping.image_lut(), self.target))
+        # the cues: the image's edge field once per target; None = off (no cost at all)
+        self.edges: np.ndarray | None = None
+        self._last: tuple[np.ndarray, np.ndarray] | None = None  # last render: labels, keys
+        if self.params.cues.edge_weight > 0:
+            if image is None:
+                raise ValueError("engine.cues.edge_weight > 0 needs the camera image "
+                                 "(image.png beside the labels)")
+            self.edges = edge_field(image, self.params.cues, self.target.shape)
         self.stages = self.params.schedule.stages()
         self._levels: dict[int, Level] = {}
         for stage in self.stages:
@@ -112,8 +124,26 @@ class Problem:
         target = self.target[off::scale, off::scale][:cam.height, :cam.width]
         probs = (None if self.probabilities is None else np.ascontiguousarray(
             self.probabilities[off::scale, off::scale][:cam.height, :cam.width]))
-        return Level(scale, setup, LabelLoss(np.ascontiguousarray(target), self.params.loss, scale,
-                                             probs))
+        loss = LabelLoss(np.ascontiguousarray(target), self.params.loss, scale, probs)
+        if self.edges is None:
+            return Level(scale, setup, loss)
+        field = self.edges[off::scale, off::scale][:cam.height, :cam.width]
+        edge = EdgeCue(field, self.params.cues,
+                       int(round(self.params.loss.crop_top * cam.height)), setup.splat_lambda,
+                       setup.radius_max)
+        return Level(scale, setup, CuedLoss(loss, edge, self.params.cues.edge_weight,
+                                            self._keys_of))
+
+    def _keys_of(self, rendered: np.ndarray) -> np.ndarray | None:
+        """The z-buffer of the render ``rendered`` came from, if it is this problem's last one
+        (the same array, or an equal copy of it: a frame set's stack cuts copies)."""
+        if self._last is None:
+            return None
+        labels, keys = self._last
+        if rendered is labels or (rendered.shape == labels.shape
+                                  and np.array_equal(rendered, labels)):
+            return keys
+        return None
 
     def level(self, stage: int = -1) -> Level:
         return self._levels[self.stages[stage].scale]
@@ -121,7 +151,11 @@ class Problem:
     def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
         """Aligned label image of the map from ``pose`` at the stage's resolution."""
         lv = self.level(stage)
-        return render(self.pmap, lv.setup.view(pose))
+        if self.edges is None:
+            return render(self.pmap, lv.setup.view(pose))
+        labels, keys = render_with_keys(self.pmap, lv.setup.view(pose))
+        self._last = (labels, keys)  # the cues' depth, read by the level's CuedLoss
+        return labels
 
     def evaluate(self, pose: Pose, stage: int = -1) -> Evaluation:
         loss, coverage = self.level(stage).loss.evaluate(self.render(pose, stage))
@@ -151,6 +185,7 @@ class Problem:
         (set to INVALID): the prepared map and the view set-ups are shared, only the targets and
         their loss tables are rebuilt."""
         other = copy.copy(self)
+        other._last = None
         other.target = np.where(ignore, INVALID, self.target).astype(np.uint8)
         other._levels = {scale: other._level(scale, level.setup)
                          for scale, level in self._levels.items()}

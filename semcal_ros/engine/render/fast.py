@@ -256,6 +256,23 @@ def _merged_labels(zbufs):
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _merged_labels_keys(zbufs):
+    """The merge of :func:`_merged_labels` that also keeps the merged keys (depth for the cues,
+    engine/cues.py): one pass, so a cue costs no second render."""
+    n_threads, size = zbufs.shape
+    out = np.empty(size, dtype=np.uint8)
+    keys = np.empty(size, dtype=np.uint32)
+    for p in range(size):
+        k = zbufs[0, p]
+        for th in range(1, n_threads):
+            if zbufs[th, p] < k:
+                k = zbufs[th, p]
+        keys[p] = k
+        out[p] = INVALID if k == EMPTY_KEY else np.uint8(k & 0xFF)
+    return out, keys
+
+
 def _zbufs(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
     threads = n_threads or numba.get_num_threads()
     return _render_zbufs(
@@ -274,3 +291,11 @@ def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> 
 def render(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
     """Aligned label image (H, W) uint8, INVALID where no point landed."""
     return _merged_labels(_zbufs(pmap, view, n_threads)).reshape(view.height, view.width)
+
+
+def render_with_keys(pmap: PreparedMap, view: View, n_threads: int | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """The label image of :func:`render` and the z-buffer of :func:`render_keys` from one render
+    (what the cues need: depth is the z-buffer's upper 24 bits)."""
+    labels, keys = _merged_labels_keys(_zbufs(pmap, view, n_threads))
+    return (labels.reshape(view.height, view.width), keys.reshape(view.height, view.width))
