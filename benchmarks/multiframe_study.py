@@ -11,7 +11,7 @@ With one frame, start k uses frame k (mod 8), so the single-frame row is spread 
 Resumable pieces: each run is one line of JSON in ``--out`` (skipped when already there), so a
 study is split into jobs under the shared lock, each well below 10 min::
 
-    flock /tmp/semcal-heavy.lock python benchmarks/multiframe_study.py run --frames 8 \\
+    python benchmarks/multiframe_study.py run --scenes SCENES --frames 8 \\
         --starts 0 1 --loss l2 --out /tmp/mf.jsonl
     python benchmarks/multiframe_study.py table /tmp/mf.jsonl
 
@@ -34,7 +34,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-SCENES = Path("/work/scenes")
 FRAMES = ("000556", "001112", "001668", "002224", "002780", "003336", "003892", "004448")
 
 
@@ -114,7 +113,7 @@ def run(args: argparse.Namespace) -> None:
             if key in have:
                 continue
             names = subset(n, k)
-            folders = [SCENES / f"kitti00_{name}_{args.suffix}" for name in names]
+            folders = [Path(args.scenes) / f"kitti00_{name}_{args.suffix}" for name in names]
             truth = files.read_pose(folders[0] / "ground_truth.yaml")
             starts = initial_guesses(truth, paper_starts(args.starts))
             frames = [load_frame(f, base) for f in folders]
@@ -147,7 +146,7 @@ def run(args: argparse.Namespace) -> None:
 
 def static_images(folder: Path, count: int, noise: str, spacing_s: float) -> list[np.ndarray]:
     """``count`` label images of a catalogue scene's camera (``semcal scene --size full --frame
-    random --mast bracket``, as /work/scenes/synth was made), each at another moment of its
+    random --mast bracket``), each at another moment of its
     traffic (the ``dynamic`` variant's 9 cars and 12 people, ``spacing_s`` apart) and each with
     fresh network-like noise (:func:`semcal_tools.scenes.labelnoise.noisy_labels` ``noise``)."""
     import yaml
@@ -254,6 +253,8 @@ def main() -> None:
     r.add_argument("--starts", type=int, nargs="+", default=[0, 1, 2])
     r.add_argument("--loss", default="l2")
     r.add_argument("--suffix", default="esp", help="label source of the scene folders")
+    r.add_argument("--scenes", required=True,
+                   help="folder holding kitti00_NNNNNN_SUFFIX scene folders (semcal real-scene)")
     r.add_argument("--config", help="engine parameters under each folder's (default: defaults)")
     r.add_argument("--out", required=True)
     r.set_defaults(func=run)
