@@ -40,7 +40,7 @@ from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.engine.search import EvaluationCounter, Search
 from semcal_ros.engine.params import CalibrationParams, ScheduleParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
-from semcal_ros.engine.problem import Problem, mapping_for
+from semcal_ros.engine.problem import Evaluation, Problem, mapping_for
 from semcal_ros.engine.render import PreparedMap, prepare_map
 from semcal_ros.errors import InputError, UnknownParameter
 
@@ -227,7 +227,10 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     it, so that offset is not reported as drift."""
     dp = drift or DriftParams()
     t0 = time.perf_counter()
-    start = problem.evaluate(calibrated, 0)
+    # one render at the calibration serves its loss, coverage and floor
+    at_calibration = problem.render(calibrated, 0)
+    start = Evaluation(*map(float, problem.level(0).loss.evaluate(at_calibration)))
+    floor = problem.level(0).loss.floor(at_calibration)
     if start.coverage < dp.min_coverage:
         return unknown(calibrated, f"the map covers {start.coverage * 100:.0f} % of the image at "
                                    f"the calibration (< {dp.min_coverage * 100:.0f} %)", t0)
@@ -245,7 +248,7 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     dr = rotation_error_deg(best, calibrated)
     # the drop relative to the loss's excess over its floor (0 for L2): a loss whose perfect
     # match is not 0 (the likelihood) would otherwise need a larger move to count
-    excess = start.loss - problem.floor(calibrated, 0)
+    excess = start.loss - floor
     gain = (start.loss - loss_best) / excess if excess > 0 else 0.0
     raw_vec, raw_gain = vec, gain
     if reference is not None and reference.estimated is not None:
