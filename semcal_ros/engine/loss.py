@@ -531,11 +531,10 @@ class LabelLoss:
         confusion matrix is shrunk towards a prior (a perfect match still pays -log C[c, c] < 1)
         and for any loss counting the pixels nothing covers. The verdict measures a loss rise
         above this floor, so a floor does not widen the uncertainty it reports."""
-        flat = np.ascontiguousarray(rendered).reshape(self.shape)
+        drawn = np.asarray(rendered).reshape(self.shape)
         target = self.target.reshape(self.shape)
-        perfect = np.where((flat != INVALID) & (target != INVALID), target, flat)
-        value, _ = self.evaluate(perfect.astype(np.uint8))
-        return value
+        perfect = np.where((drawn != INVALID) & (target != INVALID), target, drawn)
+        return self.evaluate(perfect)[0]
 
     def evaluate(self, rendered: np.ndarray) -> tuple[float, float]:
         """(loss, coverage of the target's non-sky pixels by rendered points)."""
