@@ -117,10 +117,11 @@ def test_full_procedure_refines_few_basins_and_recovers_the_pose(problem):
     # every render counts: the search's (history) and the quality report's
     assert res.evaluations == len(res.history) + res.quality.evaluations
     assert res.quality.verdict == "good", res.quality.summary()
-    # full resolution is spent only on the refined runs
+    # full resolution is spent only on the refined runs, plus one score of each other basin
+    # chosen for refinement where its half-resolution stage ended (verification.refine_final)
     full = sum(1 for run, stage, _ in res.history if stage == len(problem.stages) - 1)
     assert full <= len(refined) * params.schedule.max_evaluations[-1] * \
-        (1 + params.schedule.restarts[-1]) + len(refined)
+        (1 + params.schedule.restarts[-1]) + len(refined) + params.verification.refine_max
 
 
 def test_basins_merge_starts_that_end_together():
@@ -260,3 +261,35 @@ def test_a_stage_ends_when_its_loss_stops_improving(problem):
     for value in cut:
         mark, since = (value, 0) if value < mark - fatol else (mark, since + 1)
     assert since == 12  # it stopped exactly when the rule says, not before
+
+
+def test_only_the_best_basin_runs_the_last_stage_unless_another_comes_near(world, target):
+    """verification.refine_final 1: of the basins chosen for refinement, the best after the
+    stage before the last runs the full-resolution stage; another ends at half resolution,
+    scored once at full resolution, unless it comes near the best there. With 0 every chosen
+    basin runs every stage; the best pose is the same."""
+    from dataclasses import replace
+
+    from semcal_ros.engine.search import EvaluationCounter, Search, _refined
+
+    base = CalibrationParams()
+    far = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [2.0, -1.5, 0.5],
+                                 GROUND_TRUTH.body_rpy_deg() + [0, 4, -4])
+    found = {}
+    for final in (1, 0):
+        params = replace(base, verification=replace(base.verification, refine_final=final))
+        problem = Problem(world, target, camera(), GROUND_TRUTH.translation, params)
+        last = len(problem.stages) - 1
+        basins = [(k, pose, problem.loss(pose, 0)) for k, pose in enumerate((INITIAL, far))]
+        counter = EvaluationCounter(None, None)
+        done, rest = _refined(problem, Search(problem, counter), basins)
+        assert sorted([*done, *rest]) == [0, 1]
+        assert (len(done), len(rest)) == ((2, 0) if final == 0 else (1, 1))
+        for pose, loss, _ in rest.values():  # scored once at full resolution where it stopped
+            assert loss == pytest.approx(problem.loss(pose, last))
+            assert loss > min(d[1] for d in done.values())
+        found[final] = min(done.values(), key=lambda d: d[1])
+        assert counter.evaluations == len(counter.history)
+    assert translation_error(found[1][0], GROUND_TRUTH) < 0.05
+    assert translation_error(found[1][0], found[0][0]) < 0.02
+    assert rotation_error_deg(found[1][0], found[0][0]) < 0.05

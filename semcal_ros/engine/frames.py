@@ -20,9 +20,12 @@ per cent per 25 cm. Two ways to give the search more:
 
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Sequence
+from typing import Callable, Sequence, TypeVar
 
+import numba
 import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
@@ -54,6 +57,24 @@ class Frame:
 
 
 # --- several frames of one rig ---------------------------------------------------------------
+T = TypeVar("T")
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+
+
+def _frame_pool() -> ThreadPoolExecutor | None:
+    """The process's frame workers: one per numba thread, made on first use and shared by every
+    frame set (a calibrator runs one goal at a time); None with a single thread."""
+    global _POOL
+    workers = numba.get_num_threads()
+    if workers < 2:
+        return None
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="semcal-frame")
+        return _POOL
+
+
 class StackedLoss:
     """The loss of a :class:`FrameSet` at one resolution, on the stacked render: each frame's
     own loss on its rows, averaged over the frames (coverage likewise)."""
@@ -138,26 +159,54 @@ class FrameSet:
         self.mapping = first.mapping
         self.camera = first.camera
         self.target, self.rows = _stack([_uncropped(f) for f in self.frames])
-        self._levels: dict[int, StackedLevel] = {}
+        self._levels: dict[tuple[int, int], StackedLevel] = {}
+        # the first stage (finding the basins) on a few frames spread over the set, the later
+        # stages on all (schedule.coarse_frames): the first stage costs most evaluations
+        k = first.params.schedule.coarse_frames
+        if 0 < k < len(self.frames) and len(self.stages) > 1:
+            self.coarse = sorted({int(i) for i in np.round(np.linspace(0, len(self.frames) - 1,
+                                                                       k))})
+        else:
+            self.coarse = list(range(len(self.frames)))
 
     def __len__(self) -> int:
         return len(self.frames)
 
+    def searched(self, stage: int = -1) -> list[Problem]:
+        """The frames ``stage`` is searched and judged on: all, or at the first stage of a
+        schedule with several the ``schedule.coarse_frames`` ones."""
+        if stage % len(self.stages) == 0 and len(self.coarse) < len(self.frames):
+            return [self.frames[i] for i in self.coarse]
+        return self.frames
+
     def level(self, stage: int = -1) -> StackedLevel:
         scale = self.stages[stage].scale
-        if scale not in self._levels:
+        frames = self.searched(stage)
+        key = (scale, len(frames))
+        if key not in self._levels:
             rows = _stack([f.level(stage).loss.target.reshape(f.level(stage).loss.shape)
-                           for f in self.frames])[1]
-            self._levels[scale] = StackedLevel(scale, StackedLoss(self.frames, stage, rows))
-        return self._levels[scale]
+                           for f in frames])[1]
+            self._levels[key] = StackedLevel(scale, StackedLoss(frames, stage, rows))
+        return self._levels[key]
+
+    def _each(self, call: Callable[..., T], pose: Pose, stage: int) -> list[T]:
+        """``call(frame, pose, stage, threads)`` for every frame of the stage, in frame order.
+        With several frames and several cores the frames run side by side, each rendered on its
+        own worker thread (the renderer and the losses release the GIL), instead of one after
+        another, each on the renderer's pool."""
+        frames = self.searched(stage)
+        pool = _frame_pool() if len(frames) > 1 else None
+        if pool is None:
+            return [call(f, pose, stage, None) for f in frames]
+        return list(pool.map(lambda f: call(f, pose, stage, 1), frames))
 
     def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
         """Every frame's render from ``pose``, stacked as :attr:`target` is."""
-        return _stack([f.render(pose, stage) for f in self.frames])[0]
+        return _stack(self._each(Problem.render, pose, stage))[0]
 
     def evaluations(self, pose: Pose, stage: int = -1) -> list[Evaluation]:
         """Each frame's loss and coverage at ``pose``."""
-        return [f.evaluate(pose, stage) for f in self.frames]
+        return self._each(Problem.evaluate, pose, stage)
 
     def evaluate(self, pose: Pose, stage: int = -1) -> Evaluation:
         each = self.evaluations(pose, stage)
@@ -166,11 +215,11 @@ class FrameSet:
 
     def loss(self, pose: Pose, stage: int = -1) -> float:
         """The mean of the frames' losses at ``pose``."""
-        return float(np.mean([f.loss(pose, stage) for f in self.frames]))
+        return float(np.mean(self._each(Problem.loss, pose, stage)))
 
     def floor(self, pose: Pose, stage: int = -1) -> float:
         """The mean of the frames' floors at ``pose`` (:meth:`Problem.floor`)."""
-        return float(np.mean([f.floor(pose, stage) for f in self.frames]))
+        return float(np.mean(self._each(Problem.floor, pose, stage)))
 
     def freeze(self, pose: Pose) -> None:
         """Each frame's likelihood confusion held fixed at ``pose`` (``loss.em``, as

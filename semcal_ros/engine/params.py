@@ -115,6 +115,9 @@ class ScheduleParams:
     # a stage ends once its best loss has not dropped by more than its fatol for this many
     # evaluations (the loss is piecewise constant: plateaus, not the tolerance, end a stage); 0 = off
     stall_evaluations: int = 0
+    # several frames of one rig: the first stage searches this many of them, spread evenly over
+    # the set, the later stages all (0: all). The first stage only finds the basins
+    coarse_frames: int = 3
 
     def __post_init__(self) -> None:
         check_finite(self)
@@ -132,6 +135,8 @@ class ScheduleParams:
         check_rule("schedule.xatol", self.xatol, self.xatol > 0, "> 0")
         check_rule("schedule.stall_evaluations", self.stall_evaluations,
                    self.stall_evaluations >= 0, ">= 0")
+        check_rule("schedule.coarse_frames", self.coarse_frames, self.coarse_frames >= 0,
+                   ">= 0")
         if self.scales[-1] != 1:
             raise ValueError("schedule: the last stage must be at full resolution (scale 1)")
 
@@ -156,6 +161,9 @@ class VerificationParams:
     # the search stays within the bounds of its start)
     refine_margin: float = 0.2  # coarse loss <= best * (1 + margin): worth refining
     refine_max: int = 3  # at most this many basins refined at full resolution
+    # of those, this many (the best at the stage before the last) run the last, full-resolution
+    # stage at once; the others only if their full-resolution loss comes near (0: every one)
+    refine_final: int = 1
     merge_translation_m: float = 0.3  # coarse results closer than this and
     merge_rotation_deg: float = 0.3  # this are one basin
     loss_margin: float = 0.05  # refined runs with loss <= best * (1 + margin) + abs agree
@@ -167,6 +175,8 @@ class VerificationParams:
                      "merge_rotation_deg", "loss_margin", "loss_margin_abs"):
             check_rule(f"verification.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
         check_rule("verification.refine_max", self.refine_max, self.refine_max >= 1, ">= 1")
+        check_rule("verification.refine_final", self.refine_final, self.refine_final >= 0,
+                   ">= 0")
 
 
 @dataclass(frozen=True)

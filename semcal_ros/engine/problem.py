@@ -148,27 +148,29 @@ class Problem:
     def level(self, stage: int = -1) -> Level:
         return self._levels[self.stages[stage].scale]
 
-    def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
-        """Aligned label image of the map from ``pose`` at the stage's resolution."""
+    def render(self, pose: Pose, stage: int = -1, threads: int | None = None) -> np.ndarray:
+        """Aligned label image of the map from ``pose`` at the stage's resolution.
+        ``threads`` 1: rendered on the calling thread (a frame set renders its frames side by
+        side); default: the renderer's thread pool."""
         lv = self.level(stage)
         if self.edges is None:
-            return render(self.pmap, lv.setup.view(pose))
-        labels, keys = render_with_keys(self.pmap, lv.setup.view(pose))
+            return render(self.pmap, lv.setup.view(pose), threads)
+        labels, keys = render_with_keys(self.pmap, lv.setup.view(pose), threads)
         self._last = (labels, keys)  # the cues' depth, read by the level's CuedLoss
         return labels
 
-    def evaluate(self, pose: Pose, stage: int = -1) -> Evaluation:
-        loss, coverage = self.level(stage).loss.evaluate(self.render(pose, stage))
+    def evaluate(self, pose: Pose, stage: int = -1, threads: int | None = None) -> Evaluation:
+        loss, coverage = self.level(stage).loss.evaluate(self.render(pose, stage, threads))
         return Evaluation(float(loss), float(coverage))
 
-    def loss(self, pose: Pose, stage: int = -1) -> float:
+    def loss(self, pose: Pose, stage: int = -1, threads: int | None = None) -> float:
         """The loss (``params.loss.kind``) at ``pose`` (``stage`` -1: full resolution)."""
-        return self.level(stage).loss(self.render(pose, stage))
+        return self.level(stage).loss(self.render(pose, stage, threads))
 
-    def floor(self, pose: Pose, stage: int = -1) -> float:
+    def floor(self, pose: Pose, stage: int = -1, threads: int | None = None) -> float:
         """The loss at ``pose`` if every pixel the map covers there drew its label's class
         (:meth:`~semcal_ros.engine.loss.LabelLoss.floor`): a loss's rise is judged above it."""
-        return self.level(stage).loss.floor(self.render(pose, stage))
+        return self.level(stage).loss.floor(self.render(pose, stage, threads))
 
     def freeze(self, pose: Pose) -> None:
         """Hold the likelihood's confusion matrix fixed at ``pose`` at every level (EM's E

@@ -29,7 +29,7 @@ from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Problem
-from semcal_ros.engine.quality import assess
+from semcal_ros.engine.quality import QualityParams, assess
 from semcal_ros.engine.results import CalibrationResult, Progress, RunResult
 from semcal_ros.errors import CalibrationFailed, Cancelled, InputError  # Cancelled: raised here
 
@@ -198,14 +198,17 @@ class Search:
         return center, loss
 
     def refine(self, center: np.ndarray, loss: float, run: int, label: str,
-               restart_first: bool = True) -> tuple[np.ndarray, float]:
+               restart_first: bool = True, first: int = 1, last: int = -1
+               ) -> tuple[np.ndarray, float]:
         """From a coarse result: the first stage's restarts (unless ``restart_first`` is False),
-        then every later stage and its restarts."""
+        then the stages ``first`` to ``last`` (default: every later one) and their restarts.
+        The loss returned is the last stage's."""
         stages = self.problem.stages
+        last = last % len(stages)
         em = self.problem.params.loss.em and hasattr(self.problem, "freeze")
         if restart_first:
             center, loss = self.restart(0, center, loss, run, label)
-        for k in range(1, len(stages)):
+        for k in range(first, last + 1):
             self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
                                      f"(1/{stages[k].scale} resolution)")
             if em:  # E step at the stage's start, then the stage minimises under it
@@ -214,7 +217,7 @@ class Search:
             center, loss = self.restart(k, center, loss, run, label)
         if em:  # results are compared under the loss re-estimated at each pose
             self.problem.thaw()
-            loss = self.score(Pose.from_vector(center), -1)
+            loss = self.score(Pose.from_vector(center), last)
         return center, loss
 
 
@@ -303,6 +306,70 @@ def _without_label_outliers(problem: Problem, search: Search, pose: Pose, loss: 
     return new, problem.loss(new)
 
 
+def _refined(problem: Problem, search: Search, basins: list[tuple[int, Pose, float]]
+             ) -> tuple[dict[int, tuple[Pose, float, int]], dict[int, tuple[Pose, float, int]]]:
+    """The chosen basins refined: (pose, full-resolution loss, evaluations) by run index, those
+    taken through every stage and those left before the last.
+
+    Every basin runs the stages up to the one before the last; the last (full resolution, the
+    dearest) only the ``verification.refine_final`` best of them by that stage's loss. Each of
+    the others is then scored at full resolution where its refinement stopped, and finished as
+    well when that score comes within ``refine_margin`` of the finished best (the margin that
+    chose the basins for refinement, far wider than the quality report's rival margin): a
+    basin that could rival the result, or win, is always finished, so the verdict's count of
+    rivals is the same as with every basin finished. One that stopped within the quality
+    report's ``disagree_*`` distance of a finished one is not finished and is reported as not
+    refined: it can be no rival, and the last stage (its simplex 3 % of the bounds) draws such
+    a start to the same place."""
+    counter, vp, qp = search.counter, problem.params.verification, problem.params.quality
+    last = len(problem.stages) - 1
+    n = len(basins)
+    n_final = n if vp.refine_final == 0 else min(vp.refine_final, n)
+    through = last if n_final == n else last - 1
+    spent: dict[int, int] = {}
+    part: dict[int, tuple[np.ndarray, float]] = {}
+    labels = {i: f"refining basin {j + 1}/{n}" for j, (i, _, _) in enumerate(basins)}
+    for i, pose, loss in basins:
+        e0 = counter.evaluations
+        part[i] = search.refine(pose.vector(), loss, i, labels[i], last=through)
+        spent[i] = counter.evaluations - e0
+    done: dict[int, tuple[Pose, float, int]] = {}
+
+    def finish(i: int) -> None:
+        e0 = counter.evaluations
+        vec, loss = search.refine(part[i][0], part[i][1], i, labels[i], restart_first=False,
+                                  first=last)
+        done[i] = (Pose.from_vector(vec), loss, spent[i] + counter.evaluations - e0)
+
+    if through == last:
+        return {i: (Pose.from_vector(v), loss, spent[i]) for i, (v, loss) in part.items()}, {}
+    for i in sorted(part, key=lambda i: part[i][1])[:n_final]:
+        finish(i)
+    waiting = {}
+    for i in part:
+        if i not in done:
+            pose = Pose.from_vector(part[i][0])
+            waiting[i] = search.score(pose, last)
+            counter.record(i, last, waiting[i], pose)
+    while waiting:
+        reach = min(d[1] for d in done.values()) * (1.0 + vp.refine_margin) + vp.loss_margin_abs
+        near = [i for i in waiting if waiting[i] <= reach and not any(
+            _agrees(Pose.from_vector(part[i][0]), d[0], qp) for d in done.values())]
+        if not near:
+            break
+        for i in near:
+            finish(i)
+            del waiting[i]
+    rest = {i: (Pose.from_vector(part[i][0]), loss, spent[i] + 1) for i, loss in waiting.items()}
+    return done, rest
+
+
+def _agrees(a: Pose, b: Pose, qp: QualityParams) -> bool:
+    """Within the distance under which the quality report counts no rival."""
+    return (translation_error(a, b) <= qp.disagree_translation_m
+            and rotation_error_deg(a, b) <= qp.disagree_rotation_deg)
+
+
 def solve(problem: Problem, initial: Pose, seed: int | None = None,
           progress: Callable[[Progress], None] | None = None,
           should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
@@ -346,12 +413,10 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
     # refinement minimises the problem's own loss (a coverage term would pull the pose towards
     # more coverage); the coverage term only ranks the refined basins against each other
     weight, search.coverage_weight = search.coverage_weight, 0.0
-    refined: dict[int, tuple[Pose, float, int]] = {}
-    for j, i in enumerate(chosen):
-        e0 = counter.evaluations
-        vec, loss = search.refine(coarse[i][0].vector(), coarse[i][1], i,
-                                  f"refining basin {j + 1}/{len(chosen)}")
-        refined[i] = (Pose.from_vector(vec), loss, counter.evaluations - e0)
+    refined, unfinished = _refined(problem, search,
+                                   [(i, coarse[i][0], coarse[i][1]) for i in chosen])
+    for i, (pose, loss, evals) in unfinished.items():  # reported as not refined (no rival)
+        coarse[i] = (pose, loss, coarse[i][2] + evals)
     counter.report()
     rank = {i: refined[i][1] + (weight * (1.0 - problem.evaluate(refined[i][0]).coverage)
                                 if weight > 0 and len(refined) > 1 else 0.0) for i in refined}

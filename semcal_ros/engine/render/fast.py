@@ -178,53 +178,76 @@ def _splat(zb, u, v, dist, lab, s0, s1, span, offsets, linear, falloff, rim, wid
             zb[idx] = min(key, zb[idx])
 
 
-@numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
-def _render_zbufs(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted,
-                  bounds, splat_lambda, lod_radius, radius_max, near, far, offsets, linear, start,
-                  falloff, rim, width, height, n_threads, model, limit):
-    """One z-buffer per thread (chunks dealt round-robin), not yet merged. Each visible chunk
-    in two passes: its drawn points projected into scratch rows (vectorised), then their
-    discs written."""
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _draw_chunks(zb, first_chunk, chunk_step, coords, label, chunk_center, chunk_radius, r, t,
+                 intr, dist_c, distorted, bounds, splat_lambda, lod_radius, radius_max, near,
+                 far, offsets, linear, start, falloff, rim, width, height, model, limit):
+    """Chunks ``first_chunk``, ``first_chunk + chunk_step``, ... into the z-buffer ``zb``. Each
+    visible chunk in two passes: its drawn points projected into scratch rows (vectorised),
+    then their discs written."""
     n = coords.shape[1]
     n_chunks = chunk_center.shape[0]
-    zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
     fisheye = model == EQUIDISTANT
     rational = model == RATIONAL
     span_max = int(math.floor(radius_max))
     steps_max = int(math.floor(radius_max * RADIUS_STEPS))
-    for th in numba.prange(n_threads):
-        zb = zbufs[th]
-        zb[:] = EMPTY_KEY
-        ok = np.empty(CHUNK, dtype=np.bool_)
-        uf = np.empty(CHUNK, dtype=np.float64)
-        vf = np.empty(CHUNK, dtype=np.float64)
-        sf = np.empty(CHUNK, dtype=np.float64)
-        ds = np.empty(CHUNK, dtype=np.float64)
-        for ci in range(th, n_chunks, n_threads):
-            if fisheye:
-                if not _chunk_visible_fisheye(chunk_center[ci], chunk_radius[ci], r, t, near,
-                                              far, limit):
-                    continue
-            elif not _chunk_visible(chunk_center[ci], chunk_radius[ci], r, t, near, far, bounds):
+    zb[:] = EMPTY_KEY
+    ok = np.empty(CHUNK, dtype=np.bool_)
+    uf = np.empty(CHUNK, dtype=np.float64)
+    vf = np.empty(CHUNK, dtype=np.float64)
+    sf = np.empty(CHUNK, dtype=np.float64)
+    ds = np.empty(CHUNK, dtype=np.float64)
+    for ci in range(first_chunk, n_chunks, chunk_step):
+        if fisheye:
+            if not _chunk_visible_fisheye(chunk_center[ci], chunk_radius[ci], r, t, near,
+                                          far, limit):
                 continue
-            stride = chunk_stride(chunk_center[ci], chunk_radius[ci], r, t, near, splat_lambda,
-                                  lod_radius)
-            lam = splat_lambda * math.sqrt(np.float64(stride))
-            first = ci * CHUNK
-            m = drawn_count(stride, min(n - first, CHUNK))
-            if fisheye:
-                _project_fisheye(coords, first, m, r, t, intr, dist_c, lam, limit, near, far,
-                                 span_max, width, height, ok, uf, vf, sf, ds)
-            else:
-                _project_pinhole(coords, first, m, r, t, intr, dist_c, distorted, rational,
-                                 bounds, lam, limit, near, far, ok, uf, vf, sf, ds)
-            for j in range(m):
-                if not ok[j]:
-                    continue
-                step = min(int(sf[j]), steps_max)
-                _splat(zb, int(uf[j]), int(vf[j]), ds[j], np.uint32(label[first + j]),
-                       start[step], start[step + 1], step // RADIUS_STEPS, offsets, linear,
-                       falloff, rim, width, height)
+        elif not _chunk_visible(chunk_center[ci], chunk_radius[ci], r, t, near, far, bounds):
+            continue
+        stride = chunk_stride(chunk_center[ci], chunk_radius[ci], r, t, near, splat_lambda,
+                              lod_radius)
+        lam = splat_lambda * math.sqrt(np.float64(stride))
+        first = ci * CHUNK
+        m = drawn_count(stride, min(n - first, CHUNK))
+        if fisheye:
+            _project_fisheye(coords, first, m, r, t, intr, dist_c, lam, limit, near, far,
+                             span_max, width, height, ok, uf, vf, sf, ds)
+        else:
+            _project_pinhole(coords, first, m, r, t, intr, dist_c, distorted, rational,
+                             bounds, lam, limit, near, far, ok, uf, vf, sf, ds)
+        for j in range(m):
+            if not ok[j]:
+                continue
+            step = min(int(sf[j]), steps_max)
+            _splat(zb, int(uf[j]), int(vf[j]), ds[j], np.uint32(label[first + j]),
+                   start[step], start[step + 1], step // RADIUS_STEPS, offsets, linear,
+                   falloff, rim, width, height)
+
+
+@numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def _render_zbufs(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted,
+                  bounds, splat_lambda, lod_radius, radius_max, near, far, offsets, linear, start,
+                  falloff, rim, width, height, n_threads, model, limit):
+    """One z-buffer per thread (chunks dealt round-robin), not yet merged."""
+    zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
+    for th in numba.prange(n_threads):
+        _draw_chunks(zbufs[th], th, n_threads, coords, label, chunk_center, chunk_radius, r, t,
+                     intr, dist_c, distorted, bounds, splat_lambda, lod_radius, radius_max, near,
+                     far, offsets, linear, start, falloff, rim, width, height, model, limit)
+    return zbufs
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _render_zbuf_serial(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c,
+                        distorted, bounds, splat_lambda, lod_radius, radius_max, near, far,
+                        offsets, linear, start, falloff, rim, width, height, model, limit):
+    """The whole render into one z-buffer on the calling thread, no thread pool: what several
+    renders running side by side on their own threads call (a frame set's frames,
+    engine/frames.py), where one pool per render would fight the others for the cores."""
+    zbufs = np.empty((1, height * width), dtype=np.uint32)
+    _draw_chunks(zbufs[0], 0, 1, coords, label, chunk_center, chunk_radius, r, t, intr, dist_c,
+                 distorted, bounds, splat_lambda, lod_radius, radius_max, near, far, offsets,
+                 linear, start, falloff, rim, width, height, model, limit)
     return zbufs
 
 
@@ -274,7 +297,16 @@ def _merged_labels_keys(zbufs):
 
 
 def _zbufs(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
+    """The unmerged z-buffers; ``n_threads`` 1: on the calling thread (see
+    :func:`_render_zbuf_serial`), else one per pool thread (default: numba's thread count)."""
     threads = n_threads or numba.get_num_threads()
+    if threads == 1:
+        return _render_zbuf_serial(
+            pmap.coords, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
+            view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
+            view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far,
+            view.disc_offsets, view.disc_linear, view.disc_start, view.disc_falloff,
+            view.disc_rim, view.width, view.height, view.model, view.limit)
     return _render_zbufs(
         pmap.coords, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
         view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
