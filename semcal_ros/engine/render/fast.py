@@ -178,7 +178,7 @@ def _splat(zb, u, v, dist, lab, s0, s1, span, offsets, linear, falloff, rim, wid
             zb[idx] = min(key, zb[idx])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _draw_chunks(zb, first_chunk, chunk_step, coords, label, chunk_center, chunk_radius, r, t,
                  intr, dist_c, distorted, bounds, splat_lambda, lod_radius, radius_max, near,
                  far, offsets, linear, start, falloff, rim, width, height, model, limit):
