@@ -66,9 +66,9 @@ class Pair:
 
 
 def usable_scan(cloud: LabelledCloud, stamp: float, frame_id: str) -> Scan:
-    """A scan message's content as held: the frame's map, made from the scan as ``semcal
-    real-scene`` makes a one-scan scene's map (:func:`frame_map`); :class:`InputError` naming
-    what makes it unusable."""
+    """A scan message's content as held: its finite points and labels (the frame's map is made
+    from them when a goal needs it, :func:`frame_map`: a 10 Hz lidar would otherwise cost the
+    input callbacks more than a core); :class:`InputError` naming what makes it unusable."""
     if not frame_id:
         raise InputError("the scan has no frame_id (its lidar frame is the result's parent "
                          "frame)")
@@ -78,11 +78,7 @@ def usable_scan(cloud: LabelledCloud, stamp: float, frame_id: str) -> Scan:
     if len(finite) == 0:
         raise InputError("the scan is empty" if len(cloud) == 0 else
                          f"the scan has no finite point ({len(cloud)} points)")
-    held = frame_map(LabelledCloud(finite.xyz, finite.label), stamp)
-    if len(held) == 0:
-        raise InputError(f"none of the scan's {len(finite)} points is a static labelled point "
-                         f"within {MAP_PARAMS.d_max:g} m")
-    return Scan(stamp, held, frame_id)
+    return Scan(stamp, LabelledCloud(finite.xyz, finite.label), frame_id)
 
 
 #: The map builder's ``mapping.d_max`` and ``mapping.voxel`` (one source with real-scene).
@@ -97,8 +93,10 @@ def frame_map(scan: LabelledCloud, stamp: float = 0.0) -> LabelledCloud:
     from semcal_ros.mapping.placement import placed_map
 
     static = scan.select(~np.isin(scan.label, np.array(list(MOVING_KITTI), np.uint16)))
-    if len(static) == 0:
-        return static
+    near = static.select(np.linalg.norm(static.xyz, axis=1) <= MAP_PARAMS.d_max)
+    if len(near) == 0:
+        raise InputError(f"none of the scan's {len(scan)} points is a static labelled point "
+                         f"within {MAP_PARAMS.d_max:g} m of the lidar")
     return placed_map([static], [np.eye(4)], [stamp], MAP_PARAMS.d_max, MAP_PARAMS.voxel).map
 
 

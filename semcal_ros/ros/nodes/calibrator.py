@@ -82,7 +82,7 @@ from semcal_ros.ros.map_intake import MapIntake
 from semcal_ros.ros.params import declare_and_read
 from semcal_ros.ros.result_publisher import DEFAULT_PUBLISH_VERDICTS, ResultPublisher
 from semcal_ros.ros.rig_pairs import (SCANS_TOPIC, Pair, RigCameraInputs, RigPairs, ScanBuffer,
-                                      on_scan_message, rig_goal_request)
+                                      frame_map, on_scan_message, rig_goal_request)
 from semcal_ros.ros.runtime import run_node
 
 #: Executor threads besides one per camera (a goal waiting for the engine holds one thread).
@@ -271,7 +271,7 @@ class CalibratorNode(Node):
             request, pairs = rig_goal_request(goal, camera, self.defaults, self.opts.seed)
             points = ", ".join(str(len(p.scan.cloud)) for p in pairs)
             return (request, lambda j: self._calibrate_rig(j, state, pairs, request, camera),
-                    f"{len(pairs)} frames of the rig in '{request.map_frame}' (one-scan maps of "
+                    f"{len(pairs)} frames of the rig in '{request.map_frame}' (scans of "
                     f"{points} points)")
         inputs = self.inputs(camera)
         request = goal_request(goal, inputs, self.defaults, self.opts.seed)
@@ -284,9 +284,13 @@ class CalibratorNode(Node):
         own scan (the engine's FrameSet); the overlay is the newest frame's, over the camera's
         newest image."""
         snap = camera.snapshot()
-        frames = [Frame(p.scan.cloud, p.labels, snap.camera, request.params,
-                        background=snap.rgb if k == len(pairs) - 1 else None, name=p.name)
+        frames = [Frame(frame_map(p.scan.cloud, p.scan.stamp), p.labels, snap.camera,
+                        request.params, background=snap.rgb if k == len(pairs) - 1 else None,
+                        name=p.name)
                   for k, p in enumerate(pairs)]
+        self.get_logger().info(
+            f"goal for '{request.camera_frame}': one-scan maps of "
+            f"{', '.join(str(len(f.map_cloud)) for f in frames)} points")
         calibration = calibrate_frames_and_draw(
             frames, request.initial, self.mapping, seed=request.seed,
             progress=lambda p: self.goals.progress(state, p), should_stop=job.should_stop)
