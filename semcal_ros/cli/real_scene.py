@@ -7,6 +7,23 @@ The generic form is a contract other tools call (issue 17)::
         --cloud-labels geometric|semantickitti|FILE
         (--model M.onnx --model-config M.yaml | --labels L.png) --out SCENE
 
+Several frames of one rig (a vehicle's camera and lidar: one extrinsic) in one call::
+
+    semcal real-scene --image A.png B.png ... --scans SCAN_A1 [SCAN_A2 ...] SCAN_B1 [...] ...
+        ... --out DIR
+
+With N > 1 images, ``--scans`` holds N equal consecutive groups in image order (K =
+len(scans) / N scans each; refused when not divisible); group k's first scan is image k's (the
+camera's) scan and its map is built from its group in that scan's lidar frame (``--poses`` as
+for one image when K > 1). ``--labels`` then takes N PNGs and ``--cloud-labels`` files (not a
+mode) one per scan, in the same order. ``--out DIR`` gets one scene folder per image,
+``DIR/<image file stem>/`` (duplicate stems are refused), each exactly as the one-image form
+writes it, all with ONE ``initial.yaml`` pose (``--initial``, or the same ``--seed``
+perturbation of the same truth: every frame of a rig shares the extrinsic), and
+``DIR/frames.txt`` listing the folder names in image order, one a line. With ``--model`` the
+network is loaded once. The one-image form writes into ``--out`` itself, as before. The end of
+the output is the ``semcal calibrate --scene ...`` line that calibrates the frames together.
+
 ``--calib FILE [FILE ...]`` replaces ``--camera-info`` and ``--extrinsic`` with the recording's
 own calibration files (KITTI odometry calib.txt, KITTI object calib, PJLab calib.txt or its two
 JSON files). ``--truth-labels`` writes the ideal label image (the first scan's point labels
@@ -16,6 +33,7 @@ projected through the true extrinsic). See docs/real-data.md.
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 
@@ -25,11 +43,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Write a scene folder (map.ply, labels.png, image.png, camera_info.yaml, "
                     "ground_truth.yaml when the extrinsic is known, initial.yaml, "
                     "calibrator.yaml, scene.yaml, scans/) from one camera image and lidar scans "
-                    "in the lidar frame. The map frame is the first scan's lidar frame.")
-    p.add_argument("--image", required=True, type=Path, help="camera image (.png, .jpg)")
+                    "in the lidar frame. The map frame is the first scan's lidar frame. "
+                    "Several images (frames of one rig): --scans holds one equal group of "
+                    "scans per image, in image order (the group's first scan is the image's); "
+                    "--out DIR gets DIR/<image stem>/ per image, all with one initial.yaml, and "
+                    "DIR/frames.txt.")
+    p.add_argument("--image", required=True, type=Path, nargs="+", metavar="IMG",
+                   help="camera image (.png, .jpg); several: frames of one rig, one scene "
+                        "folder each (DIR/<image file stem>/ under --out)")
     p.add_argument("--scans", required=True, type=Path, nargs="+", metavar="SCAN",
                    help="lidar scans in the lidar frame: KITTI .bin, .pcd (ascii, binary, "
-                        "binary_compressed) or .ply; the first one is the camera's")
+                        "binary_compressed) or .ply; the first one is the camera's. With N "
+                        "images: N equal consecutive groups in image order (K = len/N scans "
+                        "each), each group's first scan the image's")
     p.add_argument("--camera-info", type=Path,
                    help="camera_info YAML (camera_calibration_parsers format)")
     p.add_argument("--extrinsic", type=Path,
@@ -56,10 +82,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="point labels: geometric (the geometric labeller), semantickitti "
                         "(SEQ/labels/NNNNNN.label beside each SEQ/velodyne/NNNNNN.bin; scans "
                         "without one take the nearest labelled point's label), or one file per "
-                        "scan (.label or labelled .ply)")
+                        "scan (.label or labelled .ply; with several images: one per scan of "
+                        "every group, in --scans order)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--model", type=Path, help="ONNX image segmenter for labels.png")
-    src.add_argument("--labels", type=Path, help="use this label PNG (mono8 trainIds)")
+    src.add_argument("--labels", type=Path, nargs="+", metavar="PNG",
+                     help="use this label PNG (mono8 trainIds); with several images one per "
+                          "image, in image order")
     src.add_argument("--truth-labels", action="store_true",
                      help="labels.png from the first scan's point labels projected through the "
                           "true extrinsic (the ideal-label reference, not a segmenter)")
@@ -67,7 +96,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--probabilities", action="store_true",
                    help="with --model: also write the class probabilities as "
                         "SCENE/probabilities.npz (float16 H x W x 19, trainIds 0-18)")
-    p.add_argument("--out", required=True, type=Path, help="scene folder to write")
+    p.add_argument("--out", required=True, type=Path,
+                   help="scene folder to write; with several images the folder that gets "
+                        "one scene folder per image (DIR/<image stem>/) and frames.txt")
     p.add_argument("--remove-vehicles", action="store_true",
                    help="remove every vehicle from the map (default: parked ones stay and "
                         "count, moving ones go)")
@@ -86,7 +117,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "the initial pose (default 5: the search's pitch bound)")
     p.add_argument("--crop-radius", type=float, default=0.0,
                    help="> 0: render.crop_radius (m) in calibrator.yaml")
-    p.add_argument("--seed", type=int, default=0, help="seed of initial.yaml's perturbation")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of initial.yaml's perturbation (one pose for every frame)")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0: all cores)")
     p.add_argument("--overlay", action="store_true",
                    help="also write overlay.png: the map rendered at the true pose over the "
@@ -109,21 +141,103 @@ def run(args: argparse.Namespace) -> int:
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be positive, got "
                              f"{getattr(args, name)}")
-    inputs = gather_inputs(args)
-    label_image = label_image_source(args, inputs)
+    plans = plan_frames(args)  # every count and name checked before any reading
+    segment = load_segmenter(args)  # the network, once for every frame
     options = RealSceneOptions(d_max=args.d_max, voxel=args.voxel,
                                remove_vehicles=args.remove_vehicles,
                                merge_road_sidewalk=not args.keep_sidewalk,
                                crop_margin_deg=args.crop_margin_deg,
                                crop_radius=args.crop_radius, seed=args.seed)
-    report = write_real_scene(inputs, args.out, label_image, options)
-    print_report(args.out, inputs, report)
-    if args.overlay:
-        if not (args.out / "ground_truth.yaml").is_file():
-            raise ValueError("--overlay needs the true extrinsic (--extrinsic or --calib)")
-        write_truth_overlay(args.out)
-        print(f"  overlay at the true pose: {args.out / 'overlay.png'}")
+    rig = len(plans) > 1
+    shared_initial = None  # several frames: the first frame's initial pose, for every frame
+    for k, plan in enumerate(plans):
+        if rig:
+            print(f"frame {k + 1}/{len(plans)}: {plan.image} with {len(plan.scans)} scan(s) -> "
+                  f"{plan.out}", flush=True)
+        inputs = gather_inputs(args, plan)
+        if rig:
+            if shared_initial is None:
+                shared_initial = (inputs.initial if inputs.initial is not None
+                                  else _perturbed_truth(inputs, args.seed))
+            inputs.initial = shared_initial
+        label_image = label_image_source(args, inputs, plan, segment)
+        report = write_real_scene(inputs, plan.out, label_image, options)
+        print_report(plan.out, inputs, report, command=not rig)
+        if args.overlay:
+            if not (plan.out / "ground_truth.yaml").is_file():
+                raise ValueError("--overlay needs the true extrinsic (--extrinsic or --calib)")
+            write_truth_overlay(plan.out)
+            print(f"  overlay at the true pose: {plan.out / 'overlay.png'}")
+        del inputs, label_image  # one frame's scans held at a time
+    if rig:
+        names = [plan.out.name for plan in plans]
+        (args.out / "frames.txt").write_text("".join(f"{n}\n" for n in names))
+        print(f"{len(plans)} frames of one rig in {args.out} (frames.txt); calibrate them "
+              f"together with: semcal calibrate --scene "
+              f"{' '.join(str(plan.out) for plan in plans)} "
+              f"--initial {plans[0].out / 'initial.yaml'} --output result.yaml")
     return 0
+
+
+@dataclass(frozen=True)
+class FramePlan:
+    """One image's share of the arguments: its scans, point label files, label PNG and folder."""
+
+    image: Path
+    scans: list[Path]
+    cloud_labels: list[str]
+    labels: Path | None
+    out: Path
+
+
+def plan_frames(args: argparse.Namespace) -> list[FramePlan]:
+    """One plan per ``--image``: one image writes into ``--out`` as ever; N images split
+    ``--scans`` (and per-scan ``--cloud-labels`` files, ``--labels``) into N equal groups in
+    image order and write ``--out/<image stem>/`` each. Checked before anything is read."""
+    from semcal_ros.segmentation.labellers import MODEL_FREE
+
+    images, scans = list(args.image), list(args.scans)
+    cloud_labels = [str(c) for c in args.cloud_labels]
+    labels = list(args.labels) if args.labels is not None else None
+    n = len(images)
+    if labels is not None and len(labels) != n:
+        raise ValueError(f"--labels: {len(labels)} label image(s) for {n} camera image(s): give "
+                         "one per image, in image order")
+    if n == 1:
+        return [FramePlan(images[0], scans, cloud_labels, labels[0] if labels else None,
+                          args.out)]
+    if len(scans) % n:
+        raise ValueError(f"--scans: {len(scans)} scans do not split into {n} equal groups (one "
+                         f"per --image, the image's scan first)")
+    stems = [im.stem for im in images]
+    repeated = sorted({s for s in stems if stems.count(s) > 1})
+    if repeated:
+        raise ValueError(f"--image: several images named {', '.join(repeated)}: each frame's "
+                         "folder is --out/<image file stem>, the stems must differ")
+    missing = [str(p) for p in [*images, *scans, *(labels or [])] if not p.is_file()]
+    if missing:  # before the first frame is written, not after
+        raise FileNotFoundError(f"not found: {', '.join(missing)}")
+    k = len(scans) // n
+    per_scan_files = not (cloud_labels in ([m] for m in MODEL_FREE)
+                          or cloud_labels == ["semantickitti"])
+    if per_scan_files and len(cloud_labels) != len(scans):
+        raise ValueError(f"--cloud-labels: {len(cloud_labels)} label file(s) for {len(scans)} "
+                         "scans (one per scan, in --scans order)")
+    return [FramePlan(images[i], scans[i * k:(i + 1) * k],
+                      cloud_labels[i * k:(i + 1) * k] if per_scan_files else cloud_labels,
+                      labels[i] if labels else None, args.out / stems[i])
+            for i in range(n)]
+
+
+def _perturbed_truth(inputs, seed: int):
+    """The initial pose one frame would draw on its own (the truth perturbed with ``seed``), so
+    a rig's shared pose is what every frame would draw anyway."""
+    import numpy as np
+
+    from semcal_ros.engine.pose import Pose, perturbed_initial
+
+    m = np.linalg.inv(inputs.t_cam_lidar)
+    return perturbed_initial(Pose.from_matrix(m[:3, :3], m[:3, 3]), np.random.default_rng(seed))
 
 
 def map_defaults(args: argparse.Namespace, defaults) -> None:
@@ -152,8 +266,9 @@ def write_truth_overlay(scene: Path, out: Path | None = None) -> Path:
     return out
 
 
-def gather_inputs(args: argparse.Namespace):
-    """Read and check every input (image, camera, extrinsic, scans, poses, point labels)."""
+def gather_inputs(args: argparse.Namespace, plan: FramePlan):
+    """Read and check every input of one frame (image, camera, extrinsic, scans, poses, point
+    labels)."""
     from semcal_ros.io import files, kitti
     from semcal_ros.io.calibration_files import read_calibration, read_extrinsic_yaml
     from semcal_ros.io.lidar_scans import read_lidar_scan, scan_poses_in_map
@@ -165,7 +280,7 @@ def gather_inputs(args: argparse.Namespace):
         raise ValueError("--calib replaces --camera-info and --extrinsic: give one or the other")
     if not args.calib and args.camera_info is None:
         raise ValueError("the camera is needed: give --camera-info (or --calib)")
-    rgb = files.read_rgb_image(args.image)
+    rgb = files.read_rgb_image(plan.image)
     height, width = rgb.shape[:2]
     kitti_tr = None
     if args.calib:
@@ -183,7 +298,7 @@ def gather_inputs(args: argparse.Namespace):
         camera = files.read_camera_info(args.camera_info)
         if (camera.width, camera.height) != (width, height):
             raise ValueError(f"{args.camera_info}: camera_info is {camera.width}x"
-                             f"{camera.height}, the image {args.image} is {width}x{height}")
+                             f"{camera.height}, the image {plan.image} is {width}x{height}")
         t_cam_lidar = read_extrinsic_yaml(args.extrinsic) if args.extrinsic else None
     if args.truth_labels and t_cam_lidar is None:
         raise ValueError("--truth-labels needs the true extrinsic (--extrinsic or --calib)")
@@ -191,52 +306,60 @@ def gather_inputs(args: argparse.Namespace):
     if t_cam_lidar is None and initial is None:
         raise ValueError("without the extrinsic (--extrinsic / --calib) an --initial pose is "
                          "needed")
-    for path in args.scans:  # formats first: a wrong file fails before any reading
+    for path in plan.scans:  # formats first: a wrong file fails before any reading
         if path.suffix.lower() not in (".bin", ".pcd", ".ply"):
             raise ValueError(f"{path}: unknown scan format '{path.suffix}' (expected .bin, "
                              ".pcd or .ply)")
         if not path.is_file():
             raise FileNotFoundError(f"scan not found: {path}")
-    poses = scan_poses_in_map(list(args.scans), args.poses, kitti_tr)
-    clouds = [read_lidar_scan(p) for p in args.scans]
-    clouds, described, notes = label_scans(list(args.scans), clouds, list(args.cloud_labels),
+    poses = scan_poses_in_map(list(plan.scans), args.poses, kitti_tr)
+    clouds = [read_lidar_scan(p) for p in plan.scans]
+    clouds, described, notes = label_scans(list(plan.scans), clouds, list(plan.cloud_labels),
                                            poses, args.label_distance)
-    labeller = args.cloud_labels[0] if list(args.cloud_labels) in ([m] for m in MODEL_FREE) \
+    labeller = plan.cloud_labels[0] if list(plan.cloud_labels) in ([m] for m in MODEL_FREE) \
         else None
-    return RealSceneInputs(rgb, camera, clouds, [str(p) for p in args.scans], poses,
+    return RealSceneInputs(rgb, camera, clouds, [str(p) for p in plan.scans], poses,
                            [0.1 * i for i in range(len(clouds))], t_cam_lidar, initial,
                            described, notes, labeller=labeller)
 
 
-def label_image_source(args: argparse.Namespace, inputs):
-    """``label_image(rgb) -> (labels, description)`` for the chosen source; a model is loaded
-    (and checked) here, before any work."""
+def load_segmenter(args: argparse.Namespace):
+    """With ``--model``: the network loaded (and checked) once, before any work, as
+    ``segment(rgb) -> (labels, description[, probabilities])``; else None."""
+    if args.model is None:
+        return None
+    from semcal_ros.segmentation.image import ImageSegmenter
+    from semcal_ros.segmentation.onnx_runner import RunnerParams
+
+    segmenter = ImageSegmenter.from_files(args.model, args.model_config,
+                                          RunnerParams(threads=args.threads))
+    if args.probabilities:
+        def with_probabilities(rgb):
+            labels, probabilities = segmenter.segment_with_probabilities(rgb, "rgb8")
+            return labels, f"model {args.model}", probabilities
+        return with_probabilities
+    return lambda rgb: (segmenter.segment(rgb, "rgb8"), f"model {args.model}")
+
+
+def label_image_source(args: argparse.Namespace, inputs, plan: FramePlan, segment=None):
+    """``label_image(rgb) -> (labels, description)`` of one frame for the chosen source: the
+    loaded network (:func:`load_segmenter`), the frame's label PNG, or its truth labels."""
     from semcal_ros.io import files
     from semcal_ros.workflows.scene_labels import projected_truth_labels
 
-    if args.model is not None:
-        from semcal_ros.segmentation.image import ImageSegmenter
-        from semcal_ros.segmentation.onnx_runner import RunnerParams
-
-        segmenter = ImageSegmenter.from_files(args.model, args.model_config,
-                                              RunnerParams(threads=args.threads))
-        if args.probabilities:
-            def with_probabilities(rgb):
-                labels, probabilities = segmenter.segment_with_probabilities(rgb, "rgb8")
-                return labels, f"model {args.model}", probabilities
-            return with_probabilities
-        return lambda rgb: (segmenter.segment(rgb, "rgb8"), f"model {args.model}")
-    if args.labels is not None:
-        labels = files.read_label_image(args.labels)
-        return lambda rgb: (labels, f"file {args.labels}")
+    if segment is not None:
+        return segment
+    if plan.labels is not None:
+        labels = files.read_label_image(plan.labels)
+        return lambda rgb: (labels, f"file {plan.labels}")
     first = inputs.scans[0]
     return lambda rgb: (projected_truth_labels(first, inputs.t_cam_lidar, inputs.camera),
                         f"first scan's point labels ({inputs.cloud_labels}) projected through "
                         "the true extrinsic")
 
 
-def print_report(out: Path, inputs, report) -> None:
-    """What was written, the label shares and the command to calibrate it."""
+def print_report(out: Path, inputs, report, command: bool = True) -> None:
+    """What was written, the label shares and (``command``) the command to calibrate it."""
     def shares(d: dict[str, float], n: int = 8) -> str:
         items = list(d.items())
         text = ", ".join(f"{k} {100 * v:.1f} %" for k, v in items[:n])
@@ -256,6 +379,9 @@ def print_report(out: Path, inputs, report) -> None:
     print(f"  map label shares: {shares(report.map_shares)}")
     print(f"  image label shares (labelled pixels): {shares(report.image_shares)}")
     print(f"  calibrator.yaml engine: {report.engine}")
+    if not command:
+        print(f"  {report.seconds:.1f} s")
+        return
     print(f"  {report.seconds:.1f} s; calibrate with: semcal calibrate --config "
           f"{out / 'calibrator.yaml'} --map {out / 'map.ply'} --labels {out / 'labels.png'} "
           f"--camera-info {out / 'camera_info.yaml'} --initial {out / 'initial.yaml'} "

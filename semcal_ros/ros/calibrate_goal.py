@@ -58,12 +58,18 @@ def _vector(v: Any) -> list[float]:
 def goal_problems(goal: Any, inputs: Inputs) -> list[str]:
     """Everything wrong with ``goal`` given ``inputs``; empty when it can run. The checks are
     :mod:`semcal_ros.engine.validation`'s, shared with ``semcal calibrate``."""
+    frame = validation.frame_problems(goal.initial_pose.header.frame_id, inputs.map_frame)
+    return field_problems(goal, frame) + input_problems(goal.camera_frame_id, inputs)
+
+
+def field_problems(goal: Any, frame: list[str] | None = None) -> list[str]:
+    """What is wrong with the goal's own fields (pose, bounds, options), whatever it runs on;
+    ``frame``: the problems of its pose's frame, listed after the pose's own."""
     pose = goal.initial_pose.pose
     position = [pose.position.x, pose.position.y, pose.position.z]
     orientation = [pose.orientation.x, pose.orientation.y, pose.orientation.z,
                    pose.orientation.w]
-    problems = validation.pose_problems(position, orientation, "initial_pose")
-    problems += validation.frame_problems(goal.initial_pose.header.frame_id, inputs.map_frame)
+    problems = validation.pose_problems(position, orientation, "initial_pose") + (frame or [])
     problems += validation.bound_problems(_vector(goal.bound_translation_m),
                                           _vector(goal.bound_rpy_deg))
     if goal.verification_starts < -1:
@@ -76,7 +82,6 @@ def goal_problems(goal: Any, inputs: Inputs) -> list[str]:
     if goal.loss not in LOSS_CHOICES:
         kinds = ", ".join(f"'{k}'" for k in LOSS_KINDS)
         problems.append(f"loss must be {kinds} or '' (node default), got '{goal.loss}'")
-    problems += input_problems(goal.camera_frame_id, inputs)
     return problems
 
 
@@ -145,16 +150,23 @@ def goal_request(goal: Any, inputs: Inputs, defaults: CalibrationParams,
     problems = goal_problems(goal, inputs)
     if problems:
         raise InputError("; ".join(problems))
+    return checked_request(goal, defaults, default_seed, inputs.map_frame, inputs.map.bounds,
+                           inputs.camera)
+
+
+def checked_request(goal: Any, defaults: CalibrationParams, default_seed: int, map_frame: str,
+                    bounds: Any, camera: CameraModel) -> Request:
+    """The request of a goal whose problems were checked: its pose, parameters and seed; the
+    initial pose checked against the ``bounds`` of what it is to see (InputError)."""
     p = goal.initial_pose.pose
     initial = Pose(np.array([p.position.x, p.position.y, p.position.z]),
                    np.array([p.orientation.x, p.orientation.y, p.orientation.z,
                              p.orientation.w]))
     params = goal_params(goal, defaults)
-    validation.check(validation.reach_problems(
-        initial.translation, inputs.map.bounds, params))
-    camera_frame = goal.camera_frame_id or inputs.camera.frame_id or "camera_optical"
+    validation.check(validation.reach_problems(initial.translation, bounds, params))
+    camera_frame = goal.camera_frame_id or camera.frame_id or "camera_optical"
     seed = int(goal.seed) if goal.seed >= 0 else default_seed
-    return Request(initial, params, seed if seed >= 0 else None, inputs.map_frame, camera_frame)
+    return Request(initial, params, seed if seed >= 0 else None, map_frame, camera_frame)
 
 
 def camera_for_goal(cameras: Mapping[str, Any], camera_frame_id: str) -> tuple[Any | None, str]:

@@ -79,12 +79,15 @@ class CalibratorStatus:
     diagnostics publish (:meth:`report`, :meth:`camera_reports`).
 
     ``cameras``: name -> CameraInputs; ``missing(camera)``: what the single camera still lacks
-    for a goal; ``map_topic``: the resolved map topic."""
+    for a goal; ``map_topic``: the resolved map topic; ``needs_map`` False: no map is missing
+    (a rig's goals calibrate against its scans)."""
 
     def __init__(self, cameras: Mapping[str, Any], goals: GoalRunner, maps: MapIntake,
-                 missing: Callable[[Any], list[str]], map_topic: str) -> None:
+                 missing: Callable[[Any], list[str]], map_topic: str,
+                 needs_map: bool = True) -> None:
         self.cameras, self.goals, self.maps = cameras, goals, maps
         self.missing, self.map_topic = missing, map_topic
+        self.needs_map = needs_map  # False: a rig calibrates against its scans, not the map
         self._lock = threading.Lock()
         self._last: dict[str, LastResult] = {}
         self.last_result = ""  # the latest answer of any camera
@@ -165,7 +168,7 @@ class CalibratorStatus:
         values["last_result"] = self.last_result or "none"
         if map_error:
             return Level.ERROR, f"map: {map_error}", values
-        if values["map_source"] == "none":
+        if values["map_source"] == "none" and self.needs_map:
             return Level.WARN, f"no map received yet (topic '{self.map_topic}')", values
         return Level.OK, "calibrating" if busy else "ready", values
 

@@ -43,7 +43,9 @@ def camera_report(watch: DriftWatch, calibration_source: str, inputs: Any) -> Re
     node's lock: it reads the watch.)"""
     last, shown = watch.last, watch.shown
     values: dict[str, Any] = {"calibration_source": calibration_source, "checks": watch.checks,
-                              "reference": "yes" if watch.reference else "no"}
+                              "reference": "yes" if watch.reference else "no",
+                              # label images the checks fuse (label_window), as the calibrator's
+                              "label_window": f"{len(watch.recent)}/{watch.window}"}
     values.update(inputs.values())
     refusals = inputs.refusals()
     if last is None:

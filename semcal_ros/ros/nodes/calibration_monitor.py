@@ -78,10 +78,15 @@ class MonitorParams:
     auto_recalibrate: bool = False  # an ERROR sends a goal to the calibrate action
     calibrate_action: str = "calibrate"
     diagnostics_period: float = 1.0
+    # a static camera: each check judges the per-pixel fusion of the last N label images the
+    # checks took (one per period; DriftWatch.windowed), as the calibrator's label_window
+    label_window: int = 1
 
     def __post_init__(self) -> None:
         if not self.period > 0:
             raise ValueError(f"period must be > 0 s, got {self.period}")
+        if self.label_window < 1:
+            raise ValueError(f"label_window must be >= 1 frames, got {self.label_window}")
         if self.confirm < 1:
             raise ValueError(f"confirm must be >= 1, got {self.confirm}")
         camera_topics(self.cameras)  # raises naming a bad or repeated name
@@ -109,7 +114,8 @@ class CalibrationMonitorNode(Node):
         self._lock = threading.Lock()
         self.cameras = {t.name: _Camera(CameraInputs(t, self.get_logger().error,
                                                      self.resolve_topic_name),
-                                        DriftWatch(self.opts.confirm))
+                                        DriftWatch(self.opts.confirm,
+                                                   window=self.opts.label_window))
                         for t in camera_topics(self.opts.cameras)}
         self.maps = MapIntake(mapping_for(check_params(self.engine, self.drift), user),
                               self.opts.map_frame, self.get_logger(), on_new=self._new_map)
@@ -187,6 +193,7 @@ class CalibrationMonitorNode(Node):
         held = self.maps.held
         with self._lock:
             pose, reference, epoch = cam.calibrated, cam.watch.reference, cam.watch.epoch
+            labels = cam.watch.windowed(snap.labels)  # label_window > 1: the window's fusion
         if held is None:
             report = unknown(pose, "no map yet")
         elif pose is None:
@@ -197,7 +204,7 @@ class CalibrationMonitorNode(Node):
         else:
             checker = DriftChecker(EMPTY_CLOUD, snap.camera, pose, self.engine, self.drift,
                                    prepared=held.prepared)
-            report = checker.check(snap.labels, reference=reference)
+            report = checker.check(labels, reference=reference)
         with self._lock:
             verdict = cam.watch.observe(report, epoch)
         self._publish(cam, verdict, snap.labels_frame or snap.frame_id)

@@ -27,6 +27,14 @@ the verdict drawn on it, to ``calibration/overlay``. /diagnostics carries the no
 with named cameras, one status per camera (``calibrator/<name>``): its inputs, its goal and the
 verdict of its last result (WARN inconclusive, ERROR failed).
 
+A moving rig (``rig_frames`` N > 1, :mod:`semcal_ros.ros.rig_pairs`): the node also takes the
+lidar's labelled scans on ``labelled_points`` (the cloud_segmenter's output, lidar frame), pairs
+each label image with the scan nearest in stamp (``rig_stamp_tolerance``; unpaired images are
+counted in the diagnostics) and keeps the last N pairs per camera; a goal's initial pose is then
+the camera's pose in the scans' frame, calibrated against all N frames at once (each frame's map
+its own scan; :func:`semcal_ros.engine.calibration.calibrate_frames_and_draw`), one verdict, the
+result published as always with the scans' frame as its parent.
+
 The node is wiring. The calibration and its overlay are the engine's
 (:func:`semcal_ros.engine.calibration.calibrate_and_draw`, as ``semcal calibrate`` runs them);
 the goal's checks and routing :mod:`semcal_ros.ros.calibrate_goal`; the answers
@@ -41,7 +49,7 @@ import copy
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from geometry_msgs.msg import TransformStamped
@@ -52,7 +60,9 @@ from sensor_msgs.msg import PointCloud2
 
 from semcal_interfaces.action import Calibrate
 from semcal_ros.engine import validation
-from semcal_ros.engine.calibration import Calibration, calibrate_and_draw
+from semcal_ros.engine.calibration import (Calibration, calibrate_and_draw,
+                                           calibrate_frames_and_draw)
+from semcal_ros.engine.frames import Frame
 from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.problem import mapping_for
@@ -63,7 +73,7 @@ from semcal_ros.ros import qos
 from semcal_ros.ros.calibrate_goal import (Inputs, Request, camera_for_goal, goal_request,
                                            input_problems)
 from semcal_ros.ros.calibrator_status import CalibratorStatus
-from semcal_ros.ros.camera_inputs import CameraInputs, camera_topics
+from semcal_ros.ros.camera_inputs import CameraInputs, CameraTopics, camera_topics
 from semcal_ros.ros.diagnostics import Diagnostics
 from semcal_ros.ros.engine_job import EngineJob, GoalRunner, GoalState
 from semcal_ros.ros.goal_answers import GoalAnswers
@@ -71,6 +81,8 @@ from semcal_ros.ros.label_window import WindowedCameraInputs, window_labels
 from semcal_ros.ros.map_intake import MapIntake
 from semcal_ros.ros.params import declare_and_read
 from semcal_ros.ros.result_publisher import DEFAULT_PUBLISH_VERDICTS, ResultPublisher
+from semcal_ros.ros.rig_pairs import (SCANS_TOPIC, Pair, RigCameraInputs, RigPairs, ScanBuffer,
+                                      frame_map, on_scan_message, rig_goal_request)
 from semcal_ros.ros.runtime import run_node
 
 #: Executor threads besides one per camera (a goal waiting for the engine holds one thread).
@@ -98,10 +110,25 @@ class CalibratorNodeParams:
     # a static camera: calibrate against the per-pixel fusion of its last N label images
     # (semcal_ros.ros.label_window); 1 = the newest image only
     label_window: int = 1
+    # a moving rig: calibrate the camera's pose in the lidar frame against its last N label
+    # images, each paired with the labelled scan (labelled_points) nearest in stamp
+    # (semcal_ros.ros.rig_pairs); 1 = the map and the newest label image, as without it
+    rig_frames: int = 1
+    rig_stamp_tolerance: float = 0.05  # s: a label image and its scan at most this far apart
+    rig_scans_held: int = 10  # labelled scans kept for pairing (label images that lag behind)
 
     def __post_init__(self) -> None:
         if self.label_window < 1:
             raise ValueError(f"label_window must be >= 1 frames, got {self.label_window}")
+        if self.rig_frames < 1:
+            raise ValueError(f"rig_frames must be >= 1 frames, got {self.rig_frames}")
+        if not self.rig_stamp_tolerance > 0:
+            raise ValueError(f"rig_stamp_tolerance must be > 0 s, got {self.rig_stamp_tolerance}")
+        if self.rig_scans_held < 1:
+            raise ValueError(f"rig_scans_held must be >= 1 scans, got {self.rig_scans_held}")
+        if self.rig_frames > 1 and self.label_window > 1:
+            raise ValueError(f"label_window {self.label_window} (a static camera) and rig_frames "
+                             f"{self.rig_frames} (a moving rig) exclude each other: set one to 1")
         if not 0 < self.feedback_period <= 1.0:
             raise ValueError("feedback_period must be in (0, 1] s (feedback at least once a "
                              f"second), got {self.feedback_period}")
@@ -125,12 +152,10 @@ class CalibratorNode(Node):
         # map is prepared with it once
         self.maps = MapIntake(mapping_for(self.defaults, self.mapping), self.opts.map_frame,
                               self.get_logger())
+        self.rig = self.opts.rig_frames > 1
+        self.scans = ScanBuffer(self.opts.rig_scans_held)
         self.cameras: dict[str, CameraInputs] = {
-            t.name: WindowedCameraInputs(t, self.get_logger().error, self.resolve_topic_name,
-                                         self.opts.image_transport, self.opts.labels_transport,
-                                         self.get_logger().warning,
-                                         window=self.opts.label_window)
-            for t in camera_topics(self.opts.cameras)}
+            t.name: self._camera_inputs(t) for t in camera_topics(self.opts.cameras)}
         if self.opts.map_file:
             self.maps.load_file(self.opts.map_file)
 
@@ -141,6 +166,14 @@ class CalibratorNode(Node):
                                  callback_group=inputs, qos_overriding_options=overrides)
         for camera in self.cameras.values():
             camera.subscribe(self, inputs, overrides)
+        if self.rig:
+            rig_cameras = [c for c in self.cameras.values() if isinstance(c, RigCameraInputs)]
+            scans_topic = self.resolve_topic_name(SCANS_TOPIC)
+            self.create_subscription(
+                PointCloud2, SCANS_TOPIC,
+                lambda msg: on_scan_message(msg, self.scans, rig_cameras,
+                                            self.get_logger().error, scans_topic),
+                qos.sensor(5), callback_group=inputs, qos_overriding_options=overrides)
         self.results = ResultPublisher(self, self.opts.publish_tf_static, self.opts.overlay_file,
                                        overrides, self.opts.publish_verdicts)
         self.action = ActionServer(
@@ -150,9 +183,11 @@ class CalibratorNode(Node):
             callback_group=ReentrantCallbackGroup())
         self.goals = GoalRunner(self, self.opts.feedback_period, self._feedback, timers,
                                 worker_name="calibrate")
-        self.status = CalibratorStatus(self.cameras, self.goals, self.maps,
-                                       lambda camera: input_problems("", self.inputs(camera)),
-                                       self.resolve_topic_name("map"))
+        self.status = CalibratorStatus(
+            self.cameras, self.goals, self.maps,
+            (lambda camera: camera.problems()) if self.rig
+            else (lambda camera: input_problems("", self.inputs(camera))),
+            self.resolve_topic_name("map"), needs_map=not self.rig)
         self.answers = GoalAnswers(self, self.status)
         self.diagnostics = Diagnostics(
             self, self.status.report, self.opts.diagnostics_period, callback_group=timers,
@@ -161,7 +196,20 @@ class CalibratorNode(Node):
                            for c in self.cameras.values())
         self.get_logger().info(
             f"ready: action '{self.resolve_topic_name('calibrate')}', map on "
-            f"'{self.resolve_topic_name('map')}', labels on {labels}")
+            f"'{self.resolve_topic_name('map')}', labels on {labels}"
+            + (f"; a rig of {self.opts.rig_frames} frames: labelled scans on "
+               f"'{self.resolve_topic_name(SCANS_TOPIC)}'" if self.rig else ""))
+
+    def _camera_inputs(self, topics: CameraTopics) -> CameraInputs:
+        """A camera's input cache: with a label window, or with a rig's pairs."""
+        log = self.get_logger()
+        common = (topics, log.error, self.resolve_topic_name, self.opts.image_transport,
+                  self.opts.labels_transport, log.warning)
+        if self.rig:
+            return RigCameraInputs(*common, rig=RigPairs(self.opts.rig_frames,
+                                                         self.opts.rig_stamp_tolerance,
+                                                         self.scans))
+        return WindowedCameraInputs(*common, window=self.opts.label_window)
 
     @property
     def last_result(self) -> str:
@@ -187,23 +235,21 @@ class CalibratorNode(Node):
             return self.answers.finish(handle, "abort", state)
         job = None
         try:
-            inputs = self.inputs(camera)
             goal = handle.request
             if frame != goal.camera_frame_id:
                 goal = copy.copy(goal)
                 goal.camera_frame_id = frame
             try:
-                request = goal_request(goal, inputs, self.defaults, self.opts.seed)
+                request, work, against = self._plan(goal, camera, state)
             except InputError as exc:
                 return self.answers.finish(handle, "abort", f"invalid goal: {exc}")
             ahead = sum(1 for k, s in self.goals.states().items()
                         if k != camera.name and s.submitted)
             self.get_logger().info(
-                f"goal {goal_id}: calibrating '{request.camera_frame}' against a map of "
-                f"{inputs.map.points} points from {np.round(request.initial.translation, 3)}"
+                f"goal {goal_id}: calibrating '{request.camera_frame}' against {against} from "
+                f"{np.round(request.initial.translation, 3)}"
                 + (f" (queued behind {ahead} goal{'s' * (ahead > 1)})" if ahead else ""))
-            job = EngineJob(lambda j: self._calibrate(j, state, inputs, request, camera),
-                            stop_also=lambda: not self.context.ok(),
+            job = EngineJob(work, stop_also=lambda: not self.context.ok(),
                             log_error=self.get_logger().error)
             outcome = self.goals.run(state, job)
             if outcome == "cancelled":
@@ -216,6 +262,45 @@ class CalibratorNode(Node):
                                       withheld)
         finally:
             self.goals.release(state, job)
+
+    def _plan(self, goal: Any, camera: CameraInputs, state: GoalState
+              ) -> tuple[Request, Callable[[EngineJob], Calibration], str]:
+        """The goal checked (InputError naming every problem), the engine work it asks for,
+        and what it calibrates against (for the log)."""
+        if isinstance(camera, RigCameraInputs):
+            request, pairs = rig_goal_request(goal, camera, self.defaults, self.opts.seed)
+            points = ", ".join(str(len(p.scan.cloud)) for p in pairs)
+            return (request, lambda j: self._calibrate_rig(j, state, pairs, request, camera),
+                    f"{len(pairs)} frames of the rig in '{request.map_frame}' (scans of "
+                    f"{points} points)")
+        inputs = self.inputs(camera)
+        request = goal_request(goal, inputs, self.defaults, self.opts.seed)
+        return (request, lambda j: self._calibrate(j, state, inputs, request, camera),
+                f"a map of {inputs.map.points} points")
+
+    def _calibrate_rig(self, job: EngineJob, state: GoalState, pairs: list[Pair],
+                       request: Request, camera: CameraInputs) -> Calibration:
+        """(engine thread) One pose in the scans' frame over every pair, each frame's map its
+        own scan (the engine's FrameSet); the overlay is the newest frame's, over the camera's
+        newest image."""
+        snap = camera.snapshot()
+        frames = [Frame(frame_map(p.scan.cloud, p.scan.stamp), p.labels, snap.camera,
+                        request.params, background=snap.rgb if k == len(pairs) - 1 else None,
+                        name=p.name)
+                  for k, p in enumerate(pairs)]
+        self.get_logger().info(
+            f"goal for '{request.camera_frame}': one-scan maps of "
+            f"{', '.join(str(len(f.map_cloud)) for f in frames)} points")
+        calibration = calibrate_frames_and_draw(
+            frames, request.initial, self.mapping, seed=request.seed,
+            progress=lambda p: self.goals.progress(state, p), should_stop=job.should_stop)
+        if calibration.overlays:
+            calibration.overlay = calibration.overlays[-1]
+        for check in calibration.frames:
+            self.get_logger().info(
+                f"goal for '{request.camera_frame}': {check.name}: loss {check.loss:.5f}, "
+                f"agreement {check.agreement * 100:.1f} %, coverage {check.coverage * 100:.1f} %")
+        return calibration
 
     def _calibrate(self, job: EngineJob, state: GoalState, inputs: Inputs, request: Request,
                    camera: CameraInputs) -> Calibration:
