@@ -87,10 +87,11 @@ def test_calibrator_fuses_its_label_window(tmp_path, demo_scene):
         print(graph.logs())
 
 
-def test_a_window_of_zero_frames_is_refused_in_one_line(tmp_path):
+@pytest.mark.parametrize("node_name", ["calibrator", "calibration_monitor"])
+def test_a_window_of_zero_frames_is_refused_in_one_line(tmp_path, node_name):
     graph = RosGraph(tmp_path)
     try:
-        proc = graph.start_node("calibrator", params={"label_window": 0})
+        proc = graph.start_node(node_name, params={"label_window": 0})
         assert proc.wait(60) != 0
         log = proc.log()
         assert "label_window must be >= 1 frames, got 0" in log
