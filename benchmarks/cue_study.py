@@ -15,7 +15,14 @@ One record per run (JSON lines, appended): error, loss, verdict, wall and CPU se
 
 Settings (comma separated): ``lik`` the likelihood loss without cues; ``_eW`` adds the depth-edge
 cue with ``cues.edge_weight`` W; ``_dG`` its ``edge_decay`` G, ``_jJ`` its ``edge_min_jump`` J,
-``_iI`` its ``edge_inset`` I.
+``_iI`` its ``edge_inset`` I; ``_nW`` adds the intensity-grey NID cue with
+``cues.intensity_weight`` W (the scene's map.ply must carry intensity), ``_bB`` its
+``intensity_bins`` B.
+
+``--profile``: instead of calibrating, the label loss and each cue's term alone at the truth and
+at shifts along each axis (full resolution), and where along each axis each is lowest:
+
+    .venv/bin/python benchmarks/cue_study.py --profile tmp/scenes/kitti00_000000_esp
 """
 
 from __future__ import annotations
@@ -47,6 +54,10 @@ def setting_params(name: str, base):
             cues = replace(cues, edge_min_jump=float(m[1:]))
         elif m.startswith("i"):
             cues = replace(cues, edge_inset=float(m[1:]))
+        elif m.startswith("n"):
+            cues = replace(cues, intensity_weight=float(m[1:]))
+        elif m.startswith("b"):
+            cues = replace(cues, intensity_bins=int(m[1:]))
         else:
             raise ValueError(f"unknown modifier '{m}' in '{name}'")
     return replace(base, loss=loss, cues=cues)
@@ -141,6 +152,69 @@ def cost(folder: Path, settings: list[str], repeats: int) -> None:
               + ", ".join(cells) + f" (load {os.getloadavg()[0]:.1f})", flush=True)
 
 
+#: shifts of the profile: metres along x, y, z; degrees of pitch and yaw
+PROFILE_STEPS_M = (-0.5, -0.25, -0.1, 0.0, 0.1, 0.25, 0.5)
+PROFILE_STEPS_DEG = (-1.0, -0.5, -0.25, 0.0, 0.25, 0.5, 1.0)
+
+
+def profile(folder: Path, out: Path | None) -> None:
+    """Each term alone (label loss, edge term, NID) at the truth and at shifts along each
+    axis, full resolution: its value at the truth, where along each axis it is lowest, and its
+    rise from the truth to the +-0.25 m / +-0.5 deg shifts (mean of both sides)."""
+    import cv2
+
+    from semcal_ros.engine.cues import CueParams
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.pose import Pose
+    from semcal_ros.engine.problem import Problem
+    from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
+    from semcal_ros.io.ply import read_ply
+
+    cloud = read_ply(folder / "map.ply")
+    labels = read_label_image(folder / "labels.png")
+    image = cv2.imread(str(folder / "image.png"), cv2.IMREAD_COLOR)
+    camera = read_camera_info(folder / "camera_info.yaml")
+    truth = read_pose(folder / "ground_truth.yaml")
+    base = setting_params("lik", CalibrationParams.from_file(folder / "calibrator.yaml"))
+    params = replace(base, cues=CueParams(edge_weight=1.0, intensity_weight=1.0))
+    problem = Problem(cloud, labels, camera, truth.translation, params, image=image)
+    level = problem.level(-1)
+    cued = level.loss
+
+    def terms(pose: Pose) -> dict[str, float]:
+        rendered = problem.render(pose)
+        assert problem._last is not None
+        _, keys, values = problem._last
+        return {"label": float(cued.labels(rendered)), "edge": cued.edge.term(keys),
+                "nid": cued.intensity.term(values)}
+
+    at = terms(truth)
+    rec: dict = {"scene": folder.name, "truth": at}
+    for axis, name in enumerate(("x", "y", "z", "roll", "pitch", "yaw")):
+        if name == "roll":
+            continue
+        steps = PROFILE_STEPS_M if axis < 3 else PROFILE_STEPS_DEG
+        rows = []
+        for d in steps:
+            v = truth.vector().copy()
+            v[axis] += d if axis < 3 else np.radians(d)
+            rows.append(terms(Pose.from_vector(v)))
+        rec[name] = {k: [r[k] for r in rows] for k in at}
+        unit = "m" if axis < 3 else "deg"
+        cells = []
+        for k in at:
+            vals = np.array(rec[name][k])
+            rise = (vals[1] + vals[5]) / 2 - vals[3]
+            cells.append(f"{k} min at {steps[int(np.argmin(vals))]:+g} {unit}, rise "
+                         f"{rise:+.4f} ({100 * rise / max(abs(vals[3]), 1e-9):+.1f} %)")
+        print(f"{folder.name:26} {name:5} " + "; ".join(cells), flush=True)
+    print(f"{folder.name:26} at truth: " + ", ".join(f"{k} {v:.4f}" for k, v in at.items())
+          + f" (load {os.getloadavg()[0]:.1f})", flush=True)
+    if out is not None:
+        with out.open("a") as f:
+            f.write(json.dumps(rec) + "\n")
+
+
 def source_of(scene: str) -> str:
     for prefix, name in (("kitti00_", "KITTI 00 single frames"), ("object_", "KITTI object"),
                          ("pjlab_", "PJLab")):
@@ -182,7 +256,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table", nargs="*", type=Path, help="print the table of these record files")
     ap.add_argument("--cost", type=int, default=0, metavar="N",
                     help="instead: CPU ms per loss evaluation over N poses, per setting")
+    ap.add_argument("--profile", action="store_true",
+                    help="instead: each term alone around the truth (see the module docstring)")
     args = ap.parse_args(argv)
+    if args.profile:
+        for folder in args.scenes:
+            profile(folder, args.out if args.out != Path("cues.jsonl") else None)
+        return 0
     if args.cost:
         for folder in args.scenes:
             cost(folder, args.settings.split(","), args.cost)

@@ -31,6 +31,12 @@ class LabelledCloud:
     def __len__(self) -> int:
         return len(self.xyz)
 
+    @property
+    def intensity(self) -> np.ndarray | None:
+        """The lidar intensity per point (``extra['intensity']``; map.ply's optional property),
+        None when the cloud has none: the intensity cue (engine/cues.py) needs it."""
+        return self.extra.get("intensity")
+
     def select(self, mask: np.ndarray) -> "LabelledCloud":
         return LabelledCloud(
             self.xyz[mask],

@@ -17,14 +17,22 @@ per cent per 25 cm). Its camera image and the map's geometry carry more:
   The term is ``1 - sum(x D) / sum(x)``: 0 when every depth edge lies on a full-strength image
   edge, 1 when none is near one (or the view has no depth edge). A weighted mean, so a weight
   means the same on every image size and resolution level.
-* **Lidar intensity against grey level (NID)**: not built. The map files ``semcal real-scene``
-  writes (``map.ply``: x, y, z, label) carry no intensity, although the placed scans beside them
-  (``scans/*.ply``) do; see docs/engine.md, "Cues beside the labels".
+* **Lidar intensity against grey level** (Pandey et al. 2015, mutual information of lidar
+  reflectivity and image grey level; Koide et al. 2023 score it by the normalised information
+  distance, NID, with 10 bins): the renderer draws, in the same pass as the labels, the
+  intensity of the point that wins each pixel (``render.fast.render_with_values``; the map's
+  intensity as rank codes, ``render.prepare.intensity_codes``). Over the pixels where both exist
+  (from the loss's first row on) the joint histogram of intensity bin and grey bin (``bins``
+  each, equally filled: the map's codes by rank, the grey image by its own quantiles) gives
+  ``NID = (H(X, Y) - I(X; Y)) / H(X, Y)`` in [0, 1]: 0 when one side fixes the other, 1 when
+  they are independent (or fewer than ``intensity_min_pixels`` pixels carry both). A map
+  without intensity (map.ply without the property) cannot have the cue.
 
-The combined loss is ``label loss + edge_weight x edge term`` (:class:`CuedLoss`); with
-``edge_weight`` 0 nothing here runs. ``edge_terms`` (numba) is what the search calls;
-``edge_terms_reference`` and ``inverse_distance_transform_reference`` (numpy) define them
-for the tests.
+The combined loss is ``label loss + edge_weight x edge term + intensity_weight x NID``
+(:class:`CuedLoss`); with both weights 0 nothing here runs. ``edge_terms`` and
+``intensity_histogram`` (numba) are what the search calls; ``edge_terms_reference``,
+``inverse_distance_transform_reference`` and ``nid_reference`` (numpy) define them for the
+tests.
 """
 
 from __future__ import annotations
@@ -54,6 +62,9 @@ class CueParams:
     # reaches past the outermost point (radius = splat_scale x point gap), so found edges lie
     # outside the outline; measured: without it every outline sits 2-5 px up and left
     edge_inset: float = 0.67
+    intensity_weight: float = 0.0  # weight of the intensity-grey NID term against the label loss
+    intensity_bins: int = 10  # bins per side of the joint histogram (Koide et al. 2023: 10)
+    intensity_min_pixels: int = 200  # fewer pixels with both (full resolution): the term is 1
 
     def __post_init__(self) -> None:
         check_finite(self)
@@ -63,10 +74,16 @@ class CueParams:
         check_rule("cues.edge_alpha", self.edge_alpha, 0 <= self.edge_alpha <= 1, "in [0, 1]")
         check_rule("cues.edge_blur_px", self.edge_blur_px, self.edge_blur_px >= 0, ">= 0")
         check_rule("cues.edge_inset", self.edge_inset, 0 <= self.edge_inset <= 2, "in [0, 2]")
+        check_rule("cues.intensity_weight", self.intensity_weight, self.intensity_weight >= 0,
+                   ">= 0")
+        check_rule("cues.intensity_bins", self.intensity_bins, 2 <= self.intensity_bins <= 64,
+                   "in [2, 64]")
+        check_rule("cues.intensity_min_pixels", self.intensity_min_pixels,
+                   self.intensity_min_pixels >= 1, ">= 1")
 
     @property
     def active(self) -> bool:
-        return self.edge_weight > 0
+        return self.edge_weight > 0 or self.intensity_weight > 0
 
 
 # --- the image side: edges and their inverse distance transform, once per target ------------
@@ -260,19 +277,137 @@ class EdgeCue:
         return 1.0 - num / den if den > 0 else 1.0
 
 
+# --- lidar intensity against grey level: NID of their joint histogram --------------------
+def grey_bins(image: np.ndarray, bins: int, shape: tuple[int, int]) -> np.ndarray:
+    """The camera image's grey level per pixel as a bin 0..bins-1 (uint8, full resolution),
+    equally filled: edges at the grey image's own quantiles (so a dark or a bright image uses
+    every bin, as the map's rank codes do). The image must be the label image's size."""
+    grey = grey_image(image)
+    if grey.shape != shape:
+        raise ValueError(f"camera image is {grey.shape[1]}x{grey.shape[0]} but the labels are "
+                         f"{shape[1]}x{shape[0]}")
+    edges = np.quantile(grey, np.arange(1, bins) / bins)
+    return np.searchsorted(edges, grey, side="right").astype(np.uint8)
+
+
+def code_bins(bins: int) -> np.ndarray:
+    """Bin of each intensity code 0..254 (rank codes, ``render.prepare.intensity_codes``);
+    255 (no intensity) stays 255."""
+    lut = (np.arange(256) * bins // 255).astype(np.uint8)  # 0..254 -> 0..bins-1
+    lut[255] = 255
+    return lut
+
+
+@numba.njit(cache=True, nogil=True)
+def intensity_histogram(values, grey, start, lut, bins):
+    """Joint histogram (bins x bins, int64) of the intensity bin ``lut[values[p]]`` and the grey
+    bin ``grey[p]`` over flat pixels from ``start`` on whose value is not 255."""
+    hist = np.zeros((bins, bins), np.int64)
+    for p in range(start, values.shape[0]):
+        v = values[p]
+        if v == 255:
+            continue
+        hist[lut[v], grey[p]] += 1
+    return hist
+
+
+@numba.njit(cache=True, nogil=True)
+def nid_of_histogram(hist):
+    """(H(X,Y) - I(X;Y)) / H(X,Y) = (2 H(X,Y) - H(X) - H(Y)) / H(X,Y) of a joint histogram;
+    1 when it is empty or holds a single cell (no information either way)."""
+    n = hist.sum()
+    if n == 0:
+        return 1.0
+    bx, by = hist.shape
+    hxy = 0.0
+    hx = 0.0
+    hy = 0.0
+    for i in range(bx):
+        row = 0
+        for j in range(by):
+            c = hist[i, j]
+            row += c
+            if c > 0:
+                q = c / n
+                hxy -= q * math.log(q)
+        if row > 0:
+            q = row / n
+            hx -= q * math.log(q)
+    for j in range(by):
+        col = 0
+        for i in range(bx):
+            col += hist[i, j]
+        if col > 0:
+            q = col / n
+            hy -= q * math.log(q)
+    if hxy <= 0.0:
+        return 1.0
+    return min(max((2.0 * hxy - hx - hy) / hxy, 0.0), 1.0)
+
+
+def nid_reference(x: np.ndarray, y: np.ndarray, bins: int) -> float:
+    """The definition: NID of two equally long arrays of bin indices 0..bins-1."""
+    x = np.asarray(x).ravel()
+    y = np.asarray(y).ravel()
+    if x.size == 0:
+        return 1.0
+    joint = np.histogram2d(x, y, bins=bins, range=[[0, bins], [0, bins]])[0] / x.size
+
+    def entropy(p: np.ndarray) -> float:
+        p = p[p > 0]
+        return float(-(p * np.log(p)).sum())
+
+    hxy = entropy(joint.ravel())
+    if hxy <= 0:
+        return 1.0
+    mi = entropy(joint.sum(axis=1)) + entropy(joint.sum(axis=0)) - hxy
+    return float(np.clip((hxy - mi) / hxy, 0.0, 1.0))
+
+
+class IntensityCue:
+    """The intensity-grey NID term at one resolution: the grey bins sampled as the level's
+    target is; ``min_pixels`` already scaled to the level."""
+
+    def __init__(self, grey: np.ndarray, params: CueParams, start_row: int,
+                 min_pixels: int) -> None:
+        self.grey = np.ascontiguousarray(grey, dtype=np.uint8)
+        self.shape = self.grey.shape
+        self.flat = self.grey.ravel()
+        self.start = start_row * self.shape[1]
+        self.bins = int(params.intensity_bins)
+        self.lut = code_bins(self.bins)
+        self.min_pixels = max(1, int(min_pixels))
+
+    def histogram(self, values: np.ndarray) -> np.ndarray:
+        flat = np.ascontiguousarray(values).ravel()
+        if flat.shape[0] != self.flat.shape[0]:
+            raise ValueError(f"intensity image {values.shape} != grey bins {self.shape}")
+        return intensity_histogram(flat, self.flat, self.start, self.lut, self.bins)
+
+    def term(self, values: np.ndarray) -> float:
+        """NID of the rendered intensity and the grey level (1: too few pixels with both)."""
+        hist = self.histogram(values)
+        if hist.sum() < self.min_pixels:
+            return 1.0
+        return float(nid_of_histogram(hist))
+
+
 class CuedLoss:
     """A level's label loss with the cues added: what ``Problem.level(stage).loss`` is when a
     cue is on. Called with a label image the problem rendered last (``Problem.render``), it adds
-    each cue's term from that render's z-buffer (``keys_of`` finds it); given any other label
-    image (none of the problem's renders) it is the label loss alone. Everything else (target,
-    shape, freeze, thaw) is the label loss's."""
+    each cue's term from that render's z-buffer and intensity image (``keys_of`` finds them);
+    given any other label image (none of the problem's renders) it is the label loss alone.
+    Everything else (target, shape, freeze, thaw) is the label loss's."""
 
-    def __init__(self, labels, edge: EdgeCue, weight: float,
-                 keys_of: Callable[[np.ndarray], np.ndarray | None]) -> None:
+    def __init__(self, labels, edge: EdgeCue | None, weight: float,
+                 keys_of: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray | None] | None],
+                 intensity: IntensityCue | None = None, intensity_weight: float = 0.0) -> None:
         self.labels = labels
         self.edge = edge
         self.weight = float(weight)
         self.keys_of = keys_of
+        self.intensity = intensity
+        self.intensity_weight = float(intensity_weight)
 
     def __getattr__(self, name: str):
         return getattr(self.labels, name)
@@ -281,15 +416,22 @@ class CuedLoss:
         loss, coverage = self.labels.evaluate(rendered)
         if loss >= self.labels.params.degenerate_loss:
             return loss, coverage
-        keys = self.keys_of(rendered)
-        if keys is None:
+        found = self.keys_of(rendered)
+        if found is None:
             return loss, coverage
-        return float(loss + self.weight * self.edge.term(keys)), coverage
+        keys, values = found
+        total = float(loss)
+        if self.edge is not None:
+            total += self.weight * self.edge.term(keys)
+        if self.intensity is not None and values is not None:
+            total += self.intensity_weight * self.intensity.term(values)
+        return total, coverage
 
     def __call__(self, rendered: np.ndarray) -> float:
         return self.evaluate(rendered)[0]
 
 
-__all__ = ["CueParams", "CuedLoss", "EdgeCue", "edge_field", "edge_terms", "edge_terms_reference",
-           "grey_image", "image_edges", "inverse_distance_transform",
-           "inverse_distance_transform_reference"]
+__all__ = ["CueParams", "CuedLoss", "EdgeCue", "IntensityCue", "code_bins", "edge_field",
+           "edge_terms", "edge_terms_reference", "grey_bins", "grey_image", "image_edges",
+           "intensity_histogram", "inverse_distance_transform",
+           "inverse_distance_transform_reference", "nid_of_histogram", "nid_reference"]

@@ -16,13 +16,13 @@ import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
-from semcal_ros.engine.cues import CuedLoss, EdgeCue, edge_field
+from semcal_ros.engine.cues import CuedLoss, EdgeCue, IntensityCue, edge_field, grey_bins
 from semcal_ros.engine.labels import INVALID, LabelMapping
 from semcal_ros.engine.loss import LabelLoss, aligned_probabilities
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render import PreparedMap, ViewSetup, prepare_map, view_setup
-from semcal_ros.engine.render.fast import render, render_with_keys
+from semcal_ros.engine.render.fast import render, render_with_keys, render_with_values
 
 
 @dataclass(frozen=True)
@@ -102,14 +102,31 @@ class Problem:
             raise ValueError("label image has no pixel of a class the map can match")
         self.probabilities = (None if probabilities is None else aligned_probabilities(
             probabilities, self.mapping.image_lut(), self.target))
-        # the cues: the image's edge field once per target; None = off (no cost at all)
+        # the cues: the image's edge field and grey bins once per target; None = off (no cost)
         self.edges: np.ndarray | None = None
-        self._last: tuple[np.ndarray, np.ndarray] | None = None  # last render: labels, keys
-        if self.params.cues.edge_weight > 0:
-            if image is None:
-                raise ValueError("engine.cues.edge_weight > 0 needs the camera image "
-                                 "(image.png beside the labels)")
-            self.edges = edge_field(image, self.params.cues, self.target.shape)
+        self.grey: np.ndarray | None = None
+        # last render: labels, keys, intensity codes (None without the intensity cue)
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        cp = self.params.cues
+        total = cp.edge_weight + cp.intensity_weight  # each term is in [0, 1]
+        if total >= 0.5 * self.params.loss.degenerate_loss:
+            raise ValueError(f"engine.cues weights sum to {total:g}: keep them below half of "
+                             f"loss.degenerate_loss ({self.params.loss.degenerate_loss:g}), or a "
+                             "view that shows the map would count as showing none of it")
+        if image is None:
+            for name, weight in (("edge_weight", cp.edge_weight),
+                                 ("intensity_weight", cp.intensity_weight)):
+                if weight > 0:
+                    raise ValueError(f"engine.cues.{name} > 0 needs the camera image "
+                                     "(image.png beside the labels)")
+        elif cp.edge_weight > 0:
+            self.edges = edge_field(image, cp, self.target.shape)
+        if image is not None and cp.intensity_weight > 0:
+            if self.pmap.intensity is None:
+                raise ValueError("engine.cues.intensity_weight > 0 needs a map with lidar "
+                                 "intensity (map.ply has no 'intensity' property: write it "
+                                 "again with semcal real-scene or semcal build-map)")
+            self.grey = grey_bins(image, cp.intensity_bins, self.target.shape)
         self.stages = self.params.schedule.stages()
         self._levels: dict[int, Level] = {}
         for stage in self.stages:
@@ -125,24 +142,31 @@ class Problem:
         probs = (None if self.probabilities is None else np.ascontiguousarray(
             self.probabilities[off::scale, off::scale][:cam.height, :cam.width]))
         loss = LabelLoss(np.ascontiguousarray(target), self.params.loss, scale, probs)
-        if self.edges is None:
+        if self.edges is None and self.grey is None:
             return Level(scale, setup, loss)
-        field = self.edges[off::scale, off::scale][:cam.height, :cam.width]
-        edge = EdgeCue(field, self.params.cues,
-                       int(round(self.params.loss.crop_top * cam.height)), setup.splat_lambda,
-                       setup.radius_max)
-        return Level(scale, setup, CuedLoss(loss, edge, self.params.cues.edge_weight,
-                                            self._keys_of))
+        cp = self.params.cues
+        start_row = int(round(self.params.loss.crop_top * cam.height))
+        edge = intensity = None
+        if self.edges is not None:
+            field = self.edges[off::scale, off::scale][:cam.height, :cam.width]
+            edge = EdgeCue(field, cp, start_row, setup.splat_lambda, setup.radius_max)
+        if self.grey is not None:
+            grey = self.grey[off::scale, off::scale][:cam.height, :cam.width]
+            intensity = IntensityCue(grey, cp, start_row,
+                                     -(-cp.intensity_min_pixels // (scale * scale)))
+        return Level(scale, setup, CuedLoss(loss, edge, cp.edge_weight, self._keys_of,
+                                            intensity, cp.intensity_weight))
 
-    def _keys_of(self, rendered: np.ndarray) -> np.ndarray | None:
-        """The z-buffer of the render ``rendered`` came from, if it is this problem's last one
-        (the same array, or an equal copy of it: a frame set's stack cuts copies)."""
+    def _keys_of(self, rendered: np.ndarray) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """The z-buffer and intensity image of the render ``rendered`` came from, if it is this
+        problem's last one (the same array, or an equal copy of it: a frame set's stack cuts
+        copies)."""
         if self._last is None:
             return None
-        labels, keys = self._last
+        labels, keys, values = self._last
         if rendered is labels or (rendered.shape == labels.shape
                                   and np.array_equal(rendered, labels)):
-            return keys
+            return keys, values
         return None
 
     def level(self, stage: int = -1) -> Level:
@@ -153,10 +177,16 @@ class Problem:
         ``threads`` 1: rendered on the calling thread (a frame set renders its frames side by
         side); default: the renderer's thread pool."""
         lv = self.level(stage)
-        if self.edges is None:
+        if self.edges is None and self.grey is None:
             return render(self.pmap, lv.setup.view(pose), threads)
-        labels, keys = render_with_keys(self.pmap, lv.setup.view(pose), threads)
-        self._last = (labels, keys)  # the cues' depth, read by the level's CuedLoss
+        values = None
+        if self.grey is not None:
+            assert self.pmap.intensity is not None  # checked when the cue was set up
+            labels, keys, values = render_with_values(self.pmap, lv.setup.view(pose),
+                                                      self.pmap.intensity, threads)
+        else:
+            labels, keys = render_with_keys(self.pmap, lv.setup.view(pose), threads)
+        self._last = (labels, keys, values)  # the cues' inputs, read by the level's CuedLoss
         return labels
 
     def evaluate(self, pose: Pose, stage: int = -1, threads: int | None = None) -> Evaluation:

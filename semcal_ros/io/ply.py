@@ -1,4 +1,8 @@
-"""Labelled PLY maps: binary little-endian, vertex float x, y, z, ushort label.
+"""Labelled PLY maps: binary little-endian, vertex float x, y, z, [float intensity,] ushort label.
+
+``intensity`` is optional (the lidar's per-point intensity, the mean over a voxel's points in a
+map; what the intensity cue of engine/cues.py needs): written when the cloud carries it, between
+z and label as in the scans' files; files without it load as before (no intensity).
 
 Open3D's PLY readers drop a ``ushort label`` property, so maps go through ``plyfile``, which keeps
 arbitrary vertex properties and reads the binary body with numpy.
@@ -40,6 +44,8 @@ def read_ply(path: str | Path, require_label: bool = True) -> LabelledCloud:
         raise ValueError(f"{path}: {problem}")
     label = vertex["label"].astype(np.uint16) if "label" in names else None
     extra = {n: np.asarray(vertex[n]) for n in names if n not in ("x", "y", "z", "label")}
+    if "intensity" in extra:  # one type whatever the file stored (uchar, ushort, double)
+        extra["intensity"] = extra["intensity"].astype(np.float32)
     return LabelledCloud(xyz, label, extra)
 
 

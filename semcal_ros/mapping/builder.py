@@ -266,12 +266,12 @@ class StreamingMapBuilder:
             raise ScanRejected(f"scan {scan_id}: {exc}", "pose") from None
         lidar = vehicle @ self.extrinsic
         t1 = time.perf_counter()
-        xyz, label, deskewed = self._prepare(scan, stamp, lidar, pose is None, twist, scan_id,
-                                             use_previous)
+        xyz, label, intensity, deskewed = self._prepare(scan, stamp, lidar, pose is None, twist,
+                                                        scan_id, use_previous)
         t2 = time.perf_counter()
         if path_xy is None:
             path_xy = np.vstack([self.path_xy(), lidar[None, :2, 3]])
-        kept = self._filter_scan(xyz, label, path_xy)
+        kept = self._filter_scan(xyz, label, path_xy, intensity)
         if len(kept) == 0:
             raise ScanRejected(f"scan {scan_id}: no points left after filtering ({len(scan)} in, "
                                f"d_max {p.d_max} m"
@@ -312,11 +312,12 @@ class StreamingMapBuilder:
 
     def _prepare(self, scan: LabelledCloud, stamp: float, lidar: np.ndarray, from_stream: bool,
                  twist: np.ndarray | None, scan_id: str, use_previous: bool = True
-                 ) -> tuple[np.ndarray, np.ndarray | None, bool]:
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, bool]:
         """The scan's points within range, de-skewed into the lidar frame of ``stamp``
         (docs/mapping.md, De-skew) after the elevation correction, in the map frame; and their
-        labels. One compiled pass (``kernels.prepare_points``); no de-skew without per-point
-        time or a velocity."""
+        labels and intensity (None when the scan has none: the map then has none). One
+        compiled pass (``kernels.prepare_points``); no de-skew without per-point time or a
+        velocity."""
         p = self.params
         xyz = scan.xyz
         if p.vertical_angle_deg != 0:
@@ -344,7 +345,10 @@ class StreamingMapBuilder:
             _NONE if twist is None else np.asarray(twist, np.float64),
             np.ascontiguousarray(lidar, dtype=np.float64), float(p.d_min), float(p.d_max),
             azimuth)
-        return out, None if scan.label is None else scan.label[keep], twist is not None
+        intensity = scan.extra.get("intensity")
+        return (out, None if scan.label is None else scan.label[keep],
+                None if intensity is None else np.asarray(intensity, np.float32)[keep],
+                twist is not None)
 
     def _velocity(self, stamp: float, lidar: np.ndarray, from_stream: bool,
                   use_previous: bool = True) -> np.ndarray | None:
@@ -363,13 +367,16 @@ class StreamingMapBuilder:
             return body_twist(self._priors[-1], lidar, stamp - self._stamps[-1])
         return None
 
-    def _filter_scan(self, xyz: np.ndarray, label: np.ndarray | None, path_xy: np.ndarray
-                     ) -> LabelledCloud:
-        """Voxel grid (majority label), dynamic classes, crop: the scan's share of the map."""
+    def _filter_scan(self, xyz: np.ndarray, label: np.ndarray | None, path_xy: np.ndarray,
+                     intensity: np.ndarray | None = None) -> LabelledCloud:
+        """Voxel grid (majority label; intensity: the mean over the voxel's points of that
+        label), dynamic classes, crop: the scan's share of the map."""
         p = self.params
-        cloud = filters.voxel_downsample(LabelledCloud(xyz, label), p.voxel)
+        extra = {} if intensity is None else {"intensity": intensity}
+        cloud = filters.voxel_downsample(LabelledCloud(xyz, label, extra), p.voxel)
         if cloud.label is None:
-            cloud = LabelledCloud(cloud.xyz, np.full(len(cloud), filters.UNLABELED, np.uint16))
+            cloud = LabelledCloud(cloud.xyz, np.full(len(cloud), filters.UNLABELED, np.uint16),
+                                  cloud.extra)
         if p.remove_dynamic:
             cloud = self._remove_dynamic(cloud, path_xy)
         if p.crop_radius > 0:

@@ -238,12 +238,15 @@ def transform(cloud: LabelledCloud, matrix: np.ndarray) -> LabelledCloud:
 
 
 def concatenate(clouds: list[LabelledCloud]) -> LabelledCloud:
-    """One cloud from several; if any part has labels, parts without get ``unlabeled`` (0)."""
+    """One cloud from several; if any part has labels, parts without get ``unlabeled`` (0).
+    Extra fields every part has (a map's intensity) are kept; the others are dropped."""
     if not clouds:
         return LabelledCloud(np.zeros((0, 3)), np.zeros(0, np.uint16))
     xyz = np.concatenate([c.xyz for c in clouds])
+    common = [k for k in clouds[0].extra if all(k in c.extra for c in clouds[1:])]
+    extra = {k: np.concatenate([c.extra[k] for c in clouds]) for k in common}
     if all(c.label is None for c in clouds):
-        return LabelledCloud(xyz)
+        return LabelledCloud(xyz, None, extra)
     label = np.concatenate([c.label if c.label is not None
                             else np.full(len(c), UNLABELED, np.uint16) for c in clouds])
-    return LabelledCloud(xyz, label.astype(np.uint16))
+    return LabelledCloud(xyz, label.astype(np.uint16), extra)

@@ -178,13 +178,45 @@ def _splat(zb, u, v, dist, lab, s0, s1, span, offsets, linear, falloff, rim, wid
             zb[idx] = min(key, zb[idx])
 
 
+@numba.njit(cache=True, inline="always")
+def _splat_value(zb, vb, val, u, v, dist, lab, s0, s1, span, offsets, linear, falloff, rim,
+                 width, height):
+    """:func:`_splat` that also keeps the point's value (its intensity code) where its key wins:
+    a strict comparison, so of equal keys the first drawn keeps the pixel. Only with a value per
+    point (the intensity cue on): the plain path keeps its plain min-stores."""
+    if u >= span and u < width - span and v >= span and v < height - span:
+        base = v * width + u  # the whole disc is inside: no test of the bounds per pixel
+        for o in range(s0, s1):
+            idx = base + linear[o]
+            key = np.uint32(min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) | \
+                (lab | rim[o])
+            old = zb[idx]
+            better = key < old  # selects, not a branch (equal keys: the first keeps it)
+            zb[idx] = key if better else old
+            vb[idx] = val if better else vb[idx]
+        return
+    for o in range(s0, s1):
+        uu = u + offsets[o, 0]
+        vv = v + offsets[o, 1]
+        if uu >= 0 and uu < width and vv >= 0 and vv < height:
+            idx = vv * width + uu
+            key = np.uint32(min(int(dist * falloff[o] * 1000.0), MAX_DEPTH_MM) << 8) | \
+                (lab | rim[o])
+            old = zb[idx]
+            better = key < old  # selects, not a branch (equal keys: the first keeps it)
+            zb[idx] = key if better else old
+            vb[idx] = val if better else vb[idx]
+
+
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def _draw_chunks(zb, first_chunk, chunk_step, coords, label, chunk_center, chunk_radius, r, t,
-                 intr, dist_c, distorted, bounds, splat_lambda, lod_radius, radius_max, near,
-                 far, offsets, linear, start, falloff, rim, width, height, model, limit):
+def _draw_chunks(zb, vb, values, first_chunk, chunk_step, coords, label, chunk_center,
+                 chunk_radius, r, t, intr, dist_c, distorted, bounds, splat_lambda, lod_radius,
+                 radius_max, near, far, offsets, linear, start, falloff, rim, width, height, model,
+                 limit):
     """Chunks ``first_chunk``, ``first_chunk + chunk_step``, ... into the z-buffer ``zb``. Each
     visible chunk in two passes: its drawn points projected into scratch rows (vectorised),
-    then their discs written."""
+    then their discs written. ``values`` (uint8 per point, or empty): the winning point's value
+    is kept in ``vb`` too (the intensity cue)."""
     n = coords.shape[1]
     n_chunks = chunk_center.shape[0]
     fisheye = model == EQUIDISTANT
@@ -192,6 +224,9 @@ def _draw_chunks(zb, first_chunk, chunk_step, coords, label, chunk_center, chunk
     span_max = int(math.floor(radius_max))
     steps_max = int(math.floor(radius_max * RADIUS_STEPS))
     zb[:] = EMPTY_KEY
+    with_values = values.shape[0] > 0
+    if with_values:
+        vb[:] = 255
     ok = np.empty(CHUNK, dtype=np.bool_)
     uf = np.empty(CHUNK, dtype=np.float64)
     vf = np.empty(CHUNK, dtype=np.float64)
@@ -219,6 +254,11 @@ def _draw_chunks(zb, first_chunk, chunk_step, coords, label, chunk_center, chunk
             if not ok[j]:
                 continue
             step = min(int(sf[j]), steps_max)
+            if with_values:
+                _splat_value(zb, vb, values[first + j], int(uf[j]), int(vf[j]), ds[j],
+                             np.uint32(label[first + j]), start[step], start[step + 1],
+                             step // RADIUS_STEPS, offsets, linear, falloff, rim, width, height)
+                continue
             _splat(zb, int(uf[j]), int(vf[j]), ds[j], np.uint32(label[first + j]),
                    start[step], start[step + 1], step // RADIUS_STEPS, offsets, linear,
                    falloff, rim, width, height)
@@ -227,28 +267,34 @@ def _draw_chunks(zb, first_chunk, chunk_step, coords, label, chunk_center, chunk
 @numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
 def _render_zbufs(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c, distorted,
                   bounds, splat_lambda, lod_radius, radius_max, near, far, offsets, linear, start,
-                  falloff, rim, width, height, n_threads, model, limit):
-    """One z-buffer per thread (chunks dealt round-robin), not yet merged."""
+                  falloff, rim, width, height, n_threads, model, limit, values):
+    """One z-buffer per thread (chunks dealt round-robin), not yet merged; with ``values``
+    (not empty) a buffer per thread of the winning point's value too ((n_threads, 1) unused
+    otherwise)."""
     zbufs = np.empty((n_threads, height * width), dtype=np.uint32)
+    vbufs = np.empty((n_threads, height * width if values.shape[0] > 0 else 1), dtype=np.uint8)
     for th in numba.prange(n_threads):
-        _draw_chunks(zbufs[th], th, n_threads, coords, label, chunk_center, chunk_radius, r, t,
-                     intr, dist_c, distorted, bounds, splat_lambda, lod_radius, radius_max, near,
-                     far, offsets, linear, start, falloff, rim, width, height, model, limit)
-    return zbufs
+        _draw_chunks(zbufs[th], vbufs[th], values, th, n_threads, coords, label, chunk_center,
+                     chunk_radius, r, t, intr, dist_c, distorted, bounds, splat_lambda,
+                     lod_radius, radius_max, near, far, offsets, linear, start, falloff, rim,
+                     width, height, model, limit)
+    return zbufs, vbufs
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _render_zbuf_serial(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c,
                         distorted, bounds, splat_lambda, lod_radius, radius_max, near, far,
-                        offsets, linear, start, falloff, rim, width, height, model, limit):
+                        offsets, linear, start, falloff, rim, width, height, model, limit,
+                        values):
     """The whole render into one z-buffer on the calling thread, no thread pool: what several
     renders running side by side on their own threads call (a frame set's frames,
     engine/frames.py), where one pool per render would fight the others for the cores."""
     zbufs = np.empty((1, height * width), dtype=np.uint32)
-    _draw_chunks(zbufs[0], 0, 1, coords, label, chunk_center, chunk_radius, r, t, intr, dist_c,
-                 distorted, bounds, splat_lambda, lod_radius, radius_max, near, far, offsets,
-                 linear, start, falloff, rim, width, height, model, limit)
-    return zbufs
+    vbufs = np.empty((1, height * width if values.shape[0] > 0 else 1), dtype=np.uint8)
+    _draw_chunks(zbufs[0], vbufs[0], values, 0, 1, coords, label, chunk_center, chunk_radius, r,
+                 t, intr, dist_c, distorted, bounds, splat_lambda, lod_radius, radius_max, near,
+                 far, offsets, linear, start, falloff, rim, width, height, model, limit)
+    return zbufs, vbufs
 
 
 @numba.njit(cache=True, nogil=True)
@@ -296,38 +342,81 @@ def _merged_labels_keys(zbufs):
     return out, keys
 
 
-def _zbufs(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
-    """The unmerged z-buffers; ``n_threads`` 1: on the calling thread (see
-    :func:`_render_zbuf_serial`), else one per pool thread (default: numba's thread count)."""
+_NO_VALUES = np.empty(0, np.uint8)
+
+
+@numba.njit(cache=True, nogil=True)
+def _merged_labels_keys_values(zbufs, vbufs):
+    """:func:`_merged_labels_keys` with the winning point's value per pixel (the first thread
+    of equal keys; 255 where the label is INVALID: empty pixels and discs' rims)."""
+    n_threads, size = zbufs.shape
+    out = np.empty(size, dtype=np.uint8)
+    keys = np.empty(size, dtype=np.uint32)
+    vals = np.empty(size, dtype=np.uint8)
+    for p in range(size):
+        k = zbufs[0, p]
+        best = 0
+        for th in range(1, n_threads):
+            if zbufs[th, p] < k:
+                k = zbufs[th, p]
+                best = th
+        keys[p] = k
+        lab = INVALID if k == EMPTY_KEY else np.uint8(k & 0xFF)
+        out[p] = lab
+        vals[p] = 255 if lab == INVALID else vbufs[best, p]
+    return out, keys, vals
+
+
+def _zbufs(pmap: PreparedMap, view: View, n_threads: int | None = None,
+           values: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The unmerged z-buffers and value buffers (used only with ``values``: the intensity cue);
+    ``n_threads`` 1: on the calling thread (see :func:`_render_zbuf_serial`), else one per pool
+    thread (default: numba's thread count)."""
     threads = n_threads or numba.get_num_threads()
+    vals = _NO_VALUES if values is None else values
     if threads == 1:
         return _render_zbuf_serial(
             pmap.coords, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
             view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
             view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far,
             view.disc_offsets, view.disc_linear, view.disc_start, view.disc_falloff,
-            view.disc_rim, view.width, view.height, view.model, view.limit)
+            view.disc_rim, view.width, view.height, view.model, view.limit, vals)
     return _render_zbufs(
         pmap.coords, pmap.label, pmap.chunk_center, pmap.chunk_radius, view.rotation,
         view.translation, view.intrinsics, view.distortion, view.distorted, view.bounds,
         view.splat_lambda, view.lod_radius, view.radius_max, view.near, view.far,
         view.disc_offsets, view.disc_linear, view.disc_start, view.disc_falloff, view.disc_rim,
-        view.width, view.height, threads, view.model, view.limit)
+        view.width, view.height, threads, view.model, view.limit, vals)
 
 
 def render_keys(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
     """The z-buffer (H, W) uint32, as reference.render_keys; EMPTY_KEY where nothing landed."""
-    return _merged_keys(_zbufs(pmap, view, n_threads)).reshape(view.height, view.width)
+    return _merged_keys(_zbufs(pmap, view, n_threads)[0]).reshape(view.height, view.width)
 
 
 def render(pmap: PreparedMap, view: View, n_threads: int | None = None) -> np.ndarray:
     """Aligned label image (H, W) uint8, INVALID where no point landed."""
-    return _merged_labels(_zbufs(pmap, view, n_threads)).reshape(view.height, view.width)
+    return _merged_labels(_zbufs(pmap, view, n_threads)[0]).reshape(view.height, view.width)
 
 
 def render_with_keys(pmap: PreparedMap, view: View, n_threads: int | None = None
                      ) -> tuple[np.ndarray, np.ndarray]:
     """The label image of :func:`render` and the z-buffer of :func:`render_keys` from one render
     (what the cues need: depth is the z-buffer's upper 24 bits)."""
-    labels, keys = _merged_labels_keys(_zbufs(pmap, view, n_threads))
+    labels, keys = _merged_labels_keys(_zbufs(pmap, view, n_threads)[0])
     return (labels.reshape(view.height, view.width), keys.reshape(view.height, view.width))
+
+
+def render_with_values(pmap: PreparedMap, view: View, values: np.ndarray,
+                       n_threads: int | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`render_with_keys` and, from the same render, the value (uint8 per stored point:
+    the map's intensity codes) of the point that won each pixel; 255 where the label is
+    INVALID (nothing drawn, or a disc's rim). As :func:`reference.render_values`, whose tie rule
+    (the first drawn point of equal keys) it keeps with one thread."""
+    values = np.ascontiguousarray(values, dtype=np.uint8)
+    if values.shape != (len(pmap),):
+        raise ValueError(f"{values.shape[0]} values for {len(pmap)} map points")
+    labels, keys, vals = _merged_labels_keys_values(*_zbufs(pmap, view, n_threads, values))
+    shape = (view.height, view.width)
+    return labels.reshape(shape), keys.reshape(shape), vals.reshape(shape)

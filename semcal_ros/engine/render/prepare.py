@@ -21,6 +21,8 @@ from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import INVALID, LabelMapping
 
 CHUNK = 1024
+#: A point's intensity code when it has none (and the intensity image's empty pixel).
+NO_INTENSITY = 255
 CHUNK_BITS = 10  # CHUNK = 2 ** CHUNK_BITS
 
 
@@ -44,6 +46,9 @@ class PreparedMap:
     label: np.ndarray  # (N,) uint8 aligned classes (no INVALID)
     chunk_center: np.ndarray  # (C, 3) float64 bounding-sphere centres
     chunk_radius: np.ndarray  # (C,) float64 bounding-sphere radii
+    # (N,) uint8 lidar intensity as its rank in the map (0-254, NO_INTENSITY where the map has
+    # none for the point), stored order; None: the map has no intensity (engine/cues.py)
+    intensity: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.label)
@@ -80,7 +85,9 @@ class PreparedMap:
 
 def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
                 center: np.ndarray | None = None, radius: float | None = None) -> PreparedMap:
-    """Drop dynamic/unmapped classes and non-finite points, crop, shift, sort, chunk."""
+    """Drop dynamic/unmapped classes and non-finite points, crop, shift, sort, chunk. A map
+    with an ``intensity`` field (map.ply's optional property) keeps it as rank codes
+    (:func:`intensity_codes`, over the points kept)."""
     if cloud.label is None:
         raise ValueError("map has no labels")
     mapping = mapping or LabelMapping()
@@ -88,6 +95,8 @@ def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
     keep = (aligned != INVALID) & np.all(np.isfinite(cloud.xyz), axis=1)
     xyz = np.asarray(cloud.xyz, dtype=np.float64)[keep]
     aligned = aligned[keep]
+    raw = cloud.extra.get("intensity")
+    intensity = None if raw is None else np.asarray(raw, dtype=np.float64).reshape(-1)[keep]
     origin = np.asarray(center, dtype=np.float64) if center is not None else (
         xyz.mean(axis=0) if len(xyz) else np.zeros(3))
     if radius is not None and len(xyz):
@@ -99,12 +108,31 @@ def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
                 f"(the map is used within {radius:g} m of it): check the initial pose and its "
                 "frame")
         xyz, aligned = xyz[near], aligned[near]
+        intensity = None if intensity is None else intensity[near]
     if len(xyz) == 0:
         raise ValueError("map has no static labelled points (after removing dynamic classes"
                          + (f" and cropping to {radius:g} m" if radius is not None else "") + ")")
     local = (xyz - origin).astype(np.float32)
     order = np.argsort(_morton_codes(local), kind="stable")
-    return _with_chunks(origin, local[order], aligned[order])
+    codes = None if intensity is None else intensity_codes(intensity)[order]
+    return _with_chunks(origin, local[order], aligned[order], codes)
+
+
+def intensity_codes(intensity: np.ndarray) -> np.ndarray:
+    """Each point's intensity as its rank among the map's points, scaled to 0-254 (uint8;
+    NO_INTENSITY where not finite). A rank, not the raw value: sources differ in scale (KITTI
+    reflectance 0-1, PJLab 0-255) and in how it is spread (heavy tails), and the intensity cue
+    bins these codes equally, so every bin holds the same share of the map's points whatever
+    the source (mutual information is unchanged by any monotone rescaling of either side)."""
+    values = np.asarray(intensity, dtype=np.float64)
+    out = np.full(len(values), NO_INTENSITY, np.uint8)
+    ok = np.isfinite(values)
+    n = int(ok.sum())
+    if n:
+        finite = values[ok]
+        rank = np.searchsorted(np.sort(finite), finite, side="left")  # ties share a rank
+        out[ok] = np.minimum(rank * NO_INTENSITY // n, NO_INTENSITY - 1).astype(np.uint8)
+    return out
 
 
 def chunk_order(n: int) -> np.ndarray:
@@ -115,12 +143,15 @@ def chunk_order(n: int) -> np.ndarray:
     return order[order < n]
 
 
-def _with_chunks(origin: np.ndarray, xyz: np.ndarray, label: np.ndarray) -> PreparedMap:
+def _with_chunks(origin: np.ndarray, xyz: np.ndarray, label: np.ndarray,
+                 intensity: np.ndarray | None = None) -> PreparedMap:
     """Chunks of CHUNK points with bounding spheres, each chunk stored in bit-reversed order."""
     n = len(xyz)
     order = chunk_order(n)
     xyz = np.ascontiguousarray(np.asarray(xyz, dtype=np.float32)[order])
     label = np.asarray(label)[order]
+    if intensity is not None:
+        intensity = np.ascontiguousarray(np.asarray(intensity, dtype=np.uint8)[order])
     n_chunks = (n + CHUNK - 1) // CHUNK
     pad = n_chunks * CHUNK - n
     padded = np.concatenate([xyz, np.repeat(xyz[-1:], pad, axis=0)]) if pad else xyz
@@ -129,7 +160,7 @@ def _with_chunks(origin: np.ndarray, xyz: np.ndarray, label: np.ndarray) -> Prep
     center = 0.5 * (lo + hi)
     radius = 0.5 * np.linalg.norm(hi - lo, axis=1)
     return PreparedMap(np.asarray(origin, np.float64), np.ascontiguousarray(xyz.T),
-                       np.ascontiguousarray(label, dtype=np.uint8), center, radius)
+                       np.ascontiguousarray(label, dtype=np.uint8), center, radius, intensity)
 
 
 def _morton_codes(xyz: np.ndarray) -> np.ndarray:

@@ -25,8 +25,10 @@ RATIONAL = MODEL_ID["rational_polynomial"]
 EQUIDISTANT = MODEL_ID["equidistant"]
 
 
-def project_points(pmap: PreparedMap, view: View) -> tuple[np.ndarray, ...]:
-    """Pixel column, row, radius step, distance and label of every drawn point in view."""
+def project_points(pmap: PreparedMap, view: View, with_index: bool = False
+                   ) -> tuple[np.ndarray, ...]:
+    """Pixel column, row, radius step, distance and label of every drawn point in view (and,
+    ``with_index``, its stored index)."""
     r, t = view.rotation, view.translation
     # level of detail: the first ceil(n/k) stored points of a chunk, discs widened by sqrt(k)
     # (render/lod.py)
@@ -42,6 +44,8 @@ def project_points(pmap: PreparedMap, view: View) -> tuple[np.ndarray, ...]:
     y = pmap.xyz[drawn, 1].astype(np.float64)
     z = pmap.xyz[drawn, 2].astype(np.float64)
     label = pmap.label[drawn]
+    if with_index:  # the stored index rides in the label's place through the culls below
+        label = np.flatnonzero(drawn) * 256 + label.astype(np.int64)
     xc = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + t[0]
     yc = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + t[1]
     zc = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + t[2]
@@ -78,7 +82,10 @@ def project_points(pmap: PreparedMap, view: View) -> tuple[np.ndarray, ...]:
         u, v, dist, lab, lam = u[keep], v[keep], dist[keep], lab[keep], lam[keep]
     steps_max = int(np.floor(view.radius_max * RADIUS_STEPS))
     step = np.minimum(np.floor(lam / dist * RADIUS_STEPS), steps_max).astype(np.int64)
-    return u, v, step, dist, lab.astype(np.int64)
+    lab = lab.astype(np.int64)
+    if with_index:
+        return u, v, step, dist, lab & 0xFF, lab >> 8
+    return u, v, step, dist, lab
 
 
 def render_keys(pmap: PreparedMap, view: View) -> np.ndarray:
@@ -109,3 +116,31 @@ def keys_to_labels(zbuf: np.ndarray) -> np.ndarray:
 def render(pmap: PreparedMap, view: View) -> np.ndarray:
     """Aligned label image (H, W) uint8, INVALID where no point landed."""
     return keys_to_labels(render_keys(pmap, view))
+
+
+def render_values(pmap: PreparedMap, view: View, values: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The z-buffer and, per pixel, the value (one per stored point: the map's intensity
+    codes) of the point whose key won it: of several with that key, the first drawn (lowest
+    stored index); 255 where the label is INVALID (nothing drawn, or a disc's rim)."""
+    zbuf = render_keys(pmap, view).ravel()
+    u, v, step, dist, lab, index = project_points(pmap, view, with_index=True)
+    w, h = view.width, view.height
+    first = np.full(h * w, np.iinfo(np.int64).max, np.int64)
+    for s in np.unique(step):
+        sel = step == s
+        us, vs, ds, ls, ix = u[sel], v[sel], dist[sel], lab[sel], index[sel]
+        lo, hi = view.disc_start[s], view.disc_start[s + 1]
+        for (du, dv), falloff, rim in zip(view.disc_offsets[lo:hi], view.disc_falloff[lo:hi],
+                                          view.disc_rim[lo:hi].astype(np.int64)):
+            uu, vv = us + du, vs + dv
+            inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
+            depth_mm = np.minimum((ds[inside] * falloff * 1000.0).astype(np.int64), MAX_DEPTH_MM)
+            key = ((depth_mm << 8) | ls[inside] | rim).astype(np.uint32)
+            idx = vv[inside] * w + uu[inside]
+            wins = key == zbuf[idx]
+            np.minimum.at(first, idx[wins], ix[inside][wins])
+    out = np.full(h * w, 255, np.uint8)
+    ok = (keys_to_labels(zbuf) != INVALID) & (first < len(pmap))
+    out[ok] = np.asarray(values, np.uint8)[first[ok]]
+    return zbuf.reshape(h, w), out.reshape(h, w)
