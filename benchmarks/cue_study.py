@@ -224,11 +224,14 @@ def source_of(scene: str) -> str:
 
 
 def table(records: list[dict]) -> str:
-    """Per source and setting: runs, median error, worst, median CPU s per calibration."""
+    """Per source and setting: runs, median error, worst, how often it beat the first setting
+    from the same start (lower translation error), median CPU s per calibration."""
     settings = list(dict.fromkeys(r["setting"] for r in records))
     sources = list(dict.fromkeys(source_of(r["scene"]) for r in records))
+    first = {(r["scene"], r["run"]): r for r in records if r["setting"] == settings[0]}
     lines = ["| source | setting | runs | median error | worst | good (of them > 30 cm / 0.5 deg) "
-             "| median CPU s | median wall s |", "|---|---|---|---|---|---|---|---|"]
+             f"| beats {settings[0]} (same start) | median CPU s | median wall s |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for src in sources:
         for s in settings:
             g = [r for r in records if r["setting"] == s and source_of(r["scene"]) == src]
@@ -238,9 +241,13 @@ def table(records: list[dict]) -> str:
             a = np.array([r["r_deg"] for r in g])
             good = [r for r in g if r["verdict"] == "good"]
             bad = sum(r["t_cm"] > 30 or r["r_deg"] > 0.5 for r in good)
+            pairs = [(r, first[(r["scene"], r["run"])]) for r in g
+                     if (r["scene"], r["run"]) in first]
+            wins = sum(r["t_cm"] < f["t_cm"] for r, f in pairs)
             lines.append(f"| {src} | {s} | {len(g)} | {np.median(t):.1f} cm / "
                          f"{np.median(a):.2f} deg | {t.max():.0f} cm / {a.max():.2f} deg | "
                          f"{len(good)} ({bad}) | "
+                         f"{'-' if s == settings[0] else f'{wins} of {len(pairs)}'} | "
                          f"{np.median([r['cpu'] for r in g]):.1f} | "
                          f"{np.median([r['seconds'] for r in g]):.1f} |")
     return "\n".join(lines)
