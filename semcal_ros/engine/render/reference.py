@@ -88,14 +88,14 @@ def project_points(pmap: PreparedMap, view: View, with_index: bool = False
     return u, v, step, dist, lab
 
 
-def render_keys(pmap: PreparedMap, view: View) -> np.ndarray:
-    """The z-buffer (H, W) uint32; EMPTY_KEY where nothing landed."""
-    u, v, step, dist, lab = project_points(pmap, view)
+def _disc_writes(u, v, step, dist, lab, view: View, *extra):
+    """Every disc pixel the projected points write, one disc offset at a time: (pixel index,
+    key, and the points' ``extra`` arrays) for the points whose pixel lies in the image."""
     w, h = view.width, view.height
-    zbuf = np.full(h * w, EMPTY_KEY, dtype=np.uint32)
     for s in np.unique(step):
         sel = step == s
         us, vs, ds, ls = u[sel], v[sel], dist[sel], lab[sel]
+        more = [e[sel] for e in extra]
         lo, hi = view.disc_start[s], view.disc_start[s + 1]
         for (du, dv), falloff, rim in zip(view.disc_offsets[lo:hi], view.disc_falloff[lo:hi],
                                           view.disc_rim[lo:hi].astype(np.int64)):
@@ -103,8 +103,16 @@ def render_keys(pmap: PreparedMap, view: View) -> np.ndarray:
             inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
             depth_mm = np.minimum((ds[inside] * falloff * 1000.0).astype(np.int64), MAX_DEPTH_MM)
             key = ((depth_mm << 8) | ls[inside] | rim).astype(np.uint32)  # rim: label INVALID
-            np.minimum.at(zbuf, vv[inside] * w + uu[inside], key)
-    return zbuf.reshape(h, w)
+            yield (vv[inside] * w + uu[inside], key, *[m[inside] for m in more])
+
+
+def render_keys(pmap: PreparedMap, view: View) -> np.ndarray:
+    """The z-buffer (H, W) uint32; EMPTY_KEY where nothing landed."""
+    zbuf = np.full(view.height * view.width, EMPTY_KEY, dtype=np.uint32)
+    u, v, step, dist, lab = project_points(pmap, view)
+    for idx, key in _disc_writes(u, v, step, dist, lab, view):
+        np.minimum.at(zbuf, idx, key)
+    return zbuf.reshape(view.height, view.width)
 
 
 def keys_to_labels(zbuf: np.ndarray) -> np.ndarray:
@@ -127,19 +135,9 @@ def render_values(pmap: PreparedMap, view: View, values: np.ndarray
     u, v, step, dist, lab, index = project_points(pmap, view, with_index=True)
     w, h = view.width, view.height
     first = np.full(h * w, np.iinfo(np.int64).max, np.int64)
-    for s in np.unique(step):
-        sel = step == s
-        us, vs, ds, ls, ix = u[sel], v[sel], dist[sel], lab[sel], index[sel]
-        lo, hi = view.disc_start[s], view.disc_start[s + 1]
-        for (du, dv), falloff, rim in zip(view.disc_offsets[lo:hi], view.disc_falloff[lo:hi],
-                                          view.disc_rim[lo:hi].astype(np.int64)):
-            uu, vv = us + du, vs + dv
-            inside = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
-            depth_mm = np.minimum((ds[inside] * falloff * 1000.0).astype(np.int64), MAX_DEPTH_MM)
-            key = ((depth_mm << 8) | ls[inside] | rim).astype(np.uint32)
-            idx = vv[inside] * w + uu[inside]
-            wins = key == zbuf[idx]
-            np.minimum.at(first, idx[wins], ix[inside][wins])
+    for idx, key, ix in _disc_writes(u, v, step, dist, lab, view, index):
+        wins = key == zbuf[idx]
+        np.minimum.at(first, idx[wins], ix[wins])
     out = np.full(h * w, 255, np.uint8)
     ok = (keys_to_labels(zbuf) != INVALID) & (first < len(pmap))
     out[ok] = np.asarray(values, np.uint8)[first[ok]]
