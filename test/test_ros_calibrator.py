@@ -26,10 +26,47 @@ from ros_helpers import RosGraph, RosProcess, held_goal, spin_until  # noqa: E40
 
 pytestmark = pytest.mark.ros
 
-#: An engine schedule that converges roughly in ~80 evaluations (about 3 s on the demo map):
-#: these tests are about the node, not the optimum.
+#: A cheap engine schedule (~80 evaluations, about 3 s on the demo map): these tests are about
+#: the node, not the optimum. How far 80 evaluations get from 1.12 m off differs between CPUs
+#: (0.3 m here, 1.10 m on another: the demo scene's ray casts round differently), so a good goal
+#: is judged against the offline engine run on the same inputs with the same settings
+#: (:func:`offline_pose`), never against how far a short search got.
 CHEAP_ENGINE = {"engine.schedule.max_evaluations": [40, 20, 20],
                 "engine.schedule.restarts": [0, 0, 0], "engine.verification.starts": 0}
+
+
+def offline_calibration(scene: Path, engine: dict[str, Any], initial: Any = None,
+                        camera: Path | None = None) -> Any:
+    """What the calibrator node must answer for a goal from ``initial`` (default: the scene's
+    initial.yaml) on ``scene``'s map and the label image and CameraInfo in ``camera`` (default:
+    ``scene``) with the node's parameter overrides ``engine``: the engine called as the node
+    calls it (the whole map prepared once, the node's default seed 0), in this process."""
+    from semcal_ros.engine.calibration import calibrate_and_draw
+    from semcal_ros.engine.config import apply_flat
+    from semcal_ros.engine.labels import LabelMapping
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.render import prepare_map
+    from semcal_ros.io.files import read_camera_info, read_label_image, read_pose
+    from semcal_ros.io.ply import read_ply
+
+    params = apply_flat(CalibrationParams(), {k[len("engine."):]: v for k, v in engine.items()})
+    mapping = LabelMapping()
+    prepared = prepare_map(read_ply(scene / "map.ply"), mapping)
+    camera = camera or scene
+    return calibrate_and_draw(None, read_label_image(camera / "labels.png"),
+                              read_camera_info(camera / "camera_info.yaml"),
+                              initial or read_pose(camera / "initial.yaml"), params, mapping,
+                              prepared=prepared, draw=False, seed=0).result
+
+
+def assert_same_pose(pose: Any, expected: Any, what: str) -> None:
+    """The node's pose is the offline engine's (same inputs, same settings, same arithmetic:
+    equal up to the float rounding of the messages)."""
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
+
+    dt, dr = translation_error(pose, expected), rotation_error_deg(pose, expected)
+    assert dt < 1e-6 and dr < 1e-6, f"{what}: {dt * 100:.4f} cm / {dr:.6f} deg from the " \
+                                    "offline engine's result"
 
 
 @dataclass
@@ -45,6 +82,7 @@ class Calibrator:
     scene: Path
     camera_msgs: dict[str, Any]
     map_points: str
+    expected: Any  # the offline engine's result for a good goal (:func:`offline_calibration`)
 
     def diag(self) -> dict[str, str]:
         return self.watcher.get("calibrator")
@@ -102,7 +140,8 @@ def calibrator(tmp_path_factory, demo_scene):
         client = CalibrateClient(node)
         client.wait_for_server(30)
         yield Calibrator(graph, proc, node, executor, client, watcher, demo_scene, msgs,
-                         watcher.get("calibrator")["map_points"])
+                         watcher.get("calibrator")["map_points"],
+                         offline_calibration(demo_scene, CHEAP_ENGINE))
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -138,7 +177,7 @@ def assert_cancelled(out: Any) -> None:
     assert r.loss == 0.0 and r.evaluations >= 0 and r.seconds >= 0.0
 
 
-def assert_succeeded(out: Any, scene: Path) -> None:
+def assert_succeeded(out: Any, scene: Path, expected: Any) -> None:
     from semcal_ros.io.files import read_pose
     from semcal_ros.engine.pose import translation_error
 
@@ -149,10 +188,12 @@ def assert_succeeded(out: Any, scene: Path) -> None:
     assert f"loss {r.loss:.5f}" in r.message and "1/1 runs agree" in r.message
     assert (r.transform.header.frame_id, r.transform.child_frame_id) == ("map", "camera_optical")
     pose = conv.pose_from_transform(r.transform)
-    truth = read_pose(scene / "ground_truth.yaml")
-    start = read_pose(scene / "initial.yaml")
-    # the cheap schedule gets most of the way from 1.12 m off; the node must not lose that
-    assert translation_error(pose, truth) < 0.5 * translation_error(start, truth)
+    # the node answers what the engine finds for the same inputs and settings, and the search
+    # did not end where it started
+    assert_same_pose(pose, expected.pose, "the node's result")
+    assert translation_error(pose, read_pose(scene / "initial.yaml")) > 0.01
+    assert r.loss == pytest.approx(expected.loss, rel=1e-9, abs=1e-12)
+    assert r.verdict == expected.quality.verdict, (r.verdict, r.verdict_reason)
     assert abs(np.linalg.norm(pose.quaternion) - 1.0) < 1e-6
     assert 0.0 < r.loss < 1.0 and math.isfinite(r.loss)
     # the search's renders plus the quality report's probes (at most ~11 per axis direction)
@@ -168,7 +209,7 @@ def assert_quality(r: Any) -> None:
 
     assert r.verdict in VERDICTS and r.verdict_reason, (r.verdict, r.verdict_reason)
     assert f"verdict {r.verdict}" in r.message
-    assert 0.5 < r.agreement <= 1.0 and 0.0 < r.coverage <= 1.0
+    assert 0.0 < r.agreement <= 1.0 and 0.0 < r.coverage <= 1.0
     assert len(r.agreement_classes) == len(r.agreement_per_class) > 0
     assert "road" in r.agreement_classes
     assert all(0.0 <= v <= 1.0 for v in r.agreement_per_class)
@@ -194,7 +235,7 @@ def test_goal_sequences_on_one_calibrator_lose_no_result(calibrator):
 
     assert_aborted(c.call(frame_problem), "invalid goal",
                    "initial_pose is in frame 'odom' but the map is in 'map'")
-    assert_succeeded(c.call(c.good_goal()), c.scene)
+    assert_succeeded(c.call(c.good_goal()), c.scene, c.expected)
     assert_aborted(c.call(bad_quaternion), "invalid goal", "not a unit quaternion")
 
     running = c.client.send(c.executor, held_goal(c.start()))  # runs until cancelled
@@ -203,7 +244,7 @@ def test_goal_sequences_on_one_calibrator_lose_no_result(calibrator):
     assert_cancelled(c.client.wait(c.executor, running, timeout=30))
     wait_idle(c)  # a cancel is answered at once; the engine stops at its next check
 
-    assert_succeeded(c.call(c.good_goal()), c.scene)
+    assert_succeeded(c.call(c.good_goal()), c.scene, c.expected)
     assert_aborted(c.call(frame_problem), "initial_pose is in frame 'odom'")
     assert c.proc.running()
     assert "Error raised in execute callback" not in c.proc.log()
@@ -351,7 +392,7 @@ def test_calibrator_kept_its_inputs_and_serves_a_good_goal_after_the_bad_inputs(
     assert d["label_image"] == "960x600"
     assert "CameraInfo: CameraInfo" not in c.proc.log()  # the prefix once, not twice
     assert "ignoring CameraInfo: K contains NaN or infinite values" in c.proc.log()
-    assert_succeeded(c.call(c.good_goal()), c.scene)
+    assert_succeeded(c.call(c.good_goal()), c.scene, c.expected)
 
 
 def test_a_goal_while_one_runs_is_answered_with_the_reason(calibrator):
@@ -370,7 +411,7 @@ def test_a_goal_while_one_runs_is_answered_with_the_reason(calibrator):
     assert_aborted(third, "frame 'odom'")
     spin_until(c.executor, lambda: c.diag().get("last_rejection") == "none", 30,
                "last_rejection to be cleared")
-    assert_succeeded(c.call(c.good_goal()), c.scene)  # and the node calibrates again
+    assert_succeeded(c.call(c.good_goal()), c.scene, c.expected)  # and the node calibrates again
 
 
 def test_a_degenerate_best_pose_is_never_published(calibrator):
@@ -403,7 +444,7 @@ def test_a_degenerate_best_pose_is_never_published(calibrator):
         # transform received (the latched one of an earlier goal, if any, then this one) is a
         # calibration of the camera near the ground, none from 80 m up.
         good = c.call(c.good_goal())
-        assert_succeeded(good, c.scene)
+        assert_succeeded(good, c.scene, c.expected)
         spin_until(c.executor, lambda: published and published[-1].transform
                    == good.result.transform.transform, 30, "the good goal's transform")
         truth = read_pose(c.scene / "ground_truth.yaml")

@@ -62,6 +62,10 @@ class DriftParams:
     turn_share: float = 0.4  # of them spent on pan and tilt alone first
     min_gain: float = 0.05  # relative loss drop (beyond the reference's) that counts as drift
     min_gain_absolute: float = 0.2  # the same without a reference check (semcal check alone)
+    # a screened drift counts only if, at the sizing's (full) resolution, the sized pose also
+    # lowers the loss by this much below the calibration's (relative to its excess over the
+    # floor): the resolution that decides centimetres decides, not the coarse screen alone
+    min_gain_full: float = 0.15
     min_coverage: float = 0.10  # the map must cover this share of the image's scene pixels
     # a counted drift is sized by a search at size_scale from the coarse estimate (the coarse
     # one undersized the demo's knock by half: at 1/4 resolution 0.3 deg is 0.6 px)
@@ -80,7 +84,8 @@ class DriftParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"drift.{name} must be a finite number > 0, got {value}")
-        for name in ("min_gain", "min_gain_absolute", "min_coverage", "turn_share"):
+        for name in ("min_gain", "min_gain_absolute", "min_gain_full", "min_coverage",
+                     "turn_share"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0 <= value < 1):
                 raise ValueError(f"drift.{name} must be in [0, 1), got {value}")
@@ -133,6 +138,10 @@ class DriftReport:
     seconds: float = 0.0
     raw_vector: np.ndarray | None = None  # where the search ended (before any reference)
     raw_gain: float = 0.0  # its relative loss drop (before any reference)
+    # where the full-resolution sizing ended (None: not sized); a reference's is the origin
+    # later checks size their drift from
+    sized_vector: np.ndarray | None = None
+    full_gain: float = math.nan  # the sized pose's relative loss drop at full resolution
 
     @property
     def judged(self) -> bool:
@@ -154,6 +163,8 @@ class DriftReport:
             "drift_xyz_m": [round(v, 4) for v in self.drift_xyz_m],
             "loss_calibrated": float(self.loss_calibrated), "loss_best": float(self.loss_best),
             "coverage": round(self.coverage, 4), "evaluations": self.evaluations,
+            **({} if math.isnan(self.full_gain) else
+               {"full_resolution_gain": round(float(self.full_gain), 4)}),
             "seconds": round(self.seconds, 3),
             **({"estimated": {"translation": [float(v) for v in t.translation],
                               "rotation": [float(v) for v in t.quaternion]}} if t else {}),
@@ -206,25 +217,37 @@ def _search(search: Search, problem: Problem, calibrated: Pose, dp: DriftParams
 
 def _size(search: Search, problem: Problem, estimate: np.ndarray, dp: DriftParams
           ) -> np.ndarray:
-    """A counted drift's size: every free axis searched at ``size_scale`` (full) resolution from
-    the coarse ``estimate``. At 1/4 resolution a 0.3 deg pan is 0.6 px: the coarse
+    """A screened drift's size: every free axis searched at ``size_scale`` (full) resolution
+    from the coarse ``estimate``. At 1/4 resolution a 0.3 deg pan is 0.6 px: the coarse
     minimum finds the direction of a knock but not its size (the demo's 5 cm / 0.3 deg knock
-    came out 2.2 cm / 0.13 deg). Measured from the calibration directly: at full resolution the
-    calibration is the minimum on an unchanged image, so no reference offset applies."""
+    came out 2.2 cm / 0.13 deg)."""
     vec, loss = search.nelder_mead(SIZE_STAGE, estimate, 0, max_evaluations=dp.size_evaluations)
     return vec if loss < problem.loss(Pose.from_vector(estimate), SIZE_STAGE) else estimate
 
 
+def _relative_gain(problem: Problem, origin: Pose, found: Pose, stage: int) -> float:
+    """How much lower the loss is at ``found`` than at ``origin``, relative to the loss's excess
+    over its floor at ``origin`` (0 for L2, above 0 for the likelihood): the share of what a
+    perfect match could still gain that the move gains."""
+    at_origin = problem.render(origin, stage)
+    loss0 = float(problem.level(stage).loss(at_origin))
+    excess = loss0 - float(problem.level(stage).loss.floor(at_origin))
+    return (loss0 - problem.loss(found, stage)) / excess if excess > 0 else 0.0
+
+
 def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = None,
-                reference: DriftReport | None = None) -> DriftReport:
+                reference: DriftReport | None = None, size_always: bool = False) -> DriftReport:
     """One check on a problem built with :func:`check_params` (its stage 0 is the check's
     resolution); see the module docstring.
 
     ``reference`` is a check of the same calibration on an image known to match it (the first
     one after the calibration). A coarse search does not end exactly at the calibration even then
     (reduced resolution moves the loss's minimum by a few cm / 0.1-0.2 deg, measured in
-    docs/drift.md); with a reference, drift and gain are counted from where the check ended on
-    it, so that offset is not reported as drift."""
+    docs/drift.md), nor does the full-resolution one when the loss is biased (the likelihood on
+    ideal labels: a few cm); with a reference, drift and gains are counted from where the
+    reference's searches ended, so that offset is not reported as drift. ``size_always``: size
+    even when the screen finds nothing (a reference check: its full-resolution minimum is the
+    origin later checks size from)."""
     dp = drift or DriftParams()
     t0 = time.perf_counter()
     # one render at the calibration serves its loss, coverage and floor
@@ -243,31 +266,37 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     vec, loss_best = _search(search, problem, calibrated, dp)
     if loss_best >= start.loss:
         vec, loss_best = calibrated.vector(), start.loss
-    best = Pose.from_vector(vec)
-    dt = translation_error(best, calibrated)
-    dr = rotation_error_deg(best, calibrated)
     # the drop relative to the loss's excess over its floor (0 for L2): a loss whose perfect
     # match is not 0 (the likelihood) would otherwise need a larger move to count
     excess = start.loss - floor
     gain = (start.loss - loss_best) / excess if excess > 0 else 0.0
     raw_vec, raw_gain = vec, gain
-    if reference is not None and reference.estimated is not None:
+    referenced = reference is not None and reference.raw_vector is not None
+    if referenced:
+        assert reference is not None and reference.raw_vector is not None
         vec = vec - (reference.raw_vector - reference.calibrated.vector())
         gain -= reference.raw_gain
-        best = Pose.from_vector(vec)
-        dt = translation_error(best, calibrated)
-        dr = rotation_error_deg(best, calibrated)
     offset = (raw_vec - calibrated.vector())[search.free] / search.scale
     at_bound = bool(np.any(np.abs(offset) > 0.95))
-    counted = gain >= (dp.min_gain if reference is not None else dp.min_gain_absolute)
-    if counted and not at_bound and dp.size_evaluations > 0:
-        vec = _size(search, problem, vec, dp)
-        best = Pose.from_vector(vec)
-        dt = translation_error(best, calibrated)
-        dr = rotation_error_deg(best, calibrated)
+    screened = gain >= (dp.min_gain if referenced else dp.min_gain_absolute)
+    counted, full_gain, sized = screened, math.nan, None
+    if (screened or size_always) and not at_bound and dp.size_evaluations > 0:
+        # the full-resolution origin: the reference's own sized minimum when it has one (the
+        # loss's bias at the calibration is then not a drift), else the calibration
+        origin_vec = calibrated.vector()
+        if referenced and reference is not None and reference.sized_vector is not None:
+            origin_vec = reference.sized_vector
+        sized = _size(search, problem, vec, dp)
+        full_gain = _relative_gain(problem, Pose.from_vector(origin_vec),
+                                   Pose.from_vector(sized), SIZE_STAGE)
+        counted = screened and full_gain >= dp.min_gain_full
+        vec = sized - (origin_vec - calibrated.vector())
+    best = Pose.from_vector(vec)
+    dt = translation_error(best, calibrated)
+    dr = rotation_error_deg(best, calibrated)
     seconds = time.perf_counter() - t0
     what = f"drift {dt * 100:.1f} cm / {dr:.2f} deg"
-    if counted and at_bound:
+    if screened and at_bound:
         level, why = "error", (f"{what} at the check's bounds ({dp.bound_m * 100:.0f} cm / "
                                f"{dp.bound_deg:g} deg): moved further, recalibrate")
     elif counted and (dt > dp.error_translation_m or dr > dp.error_rotation_deg):
@@ -279,19 +308,24 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     elif counted:
         level, why = "ok", f"{what}, within {dp.warn_translation_m * 100:.0f} cm / " \
                            f"{dp.warn_rotation_deg:g} deg"
+    elif screened:
+        level, why = "ok", (f"no clearly better pose nearby (the best, {what} away, lowers "
+                            f"the loss at full resolution by {full_gain * 100:.1f} % < "
+                            f"{dp.min_gain_full * 100:.0f} %)")
     else:
-        need = dp.min_gain if reference is not None else dp.min_gain_absolute
+        need = dp.min_gain if referenced else dp.min_gain_absolute
         level, why = "ok", (f"no clearly better pose nearby (the best, {what} away, lowers "
                             f"the loss by {gain * 100:.1f} % < {need * 100:.0f} %)")
-    if not counted:
-        dt, dr, vec_d = 0.0, 0.0, np.zeros(3)
-    else:
+    if counted or (screened and at_bound):
         vec_d = best.translation - calibrated.translation
+    else:
+        dt, dr, vec_d = 0.0, 0.0, np.zeros(3)
     return DriftReport(level, why, calibrated, best, float(dt), float(dr),
                        (float(vec_d[0]), float(vec_d[1]), float(vec_d[2])), float(start.loss),
                        float(loss_best),
                        float(start.coverage), counter.evaluations + 1, seconds,
-                       raw_vector=raw_vec, raw_gain=float(raw_gain))
+                       raw_vector=raw_vec, raw_gain=float(raw_gain), sized_vector=sized,
+                       full_gain=float(full_gain))
 
 
 class DriftChecker:
@@ -312,10 +346,11 @@ class DriftChecker:
             radius=self.params.render.crop_radius or None)
 
     def check(self, labels: np.ndarray | None, calibrated: Pose | None = None,
-              reference: DriftReport | None = None) -> DriftReport:
+              reference: DriftReport | None = None, size_always: bool = False
+              ) -> DriftReport:
         """Check ``calibrated`` (default: the one given at construction) against ``labels``
         (mono8 Cityscapes trainIds; None: no image yet), counted from ``reference`` if given
-        (see :func:`check_drift`)."""
+        (see :func:`check_drift`; ``size_always`` for a check that may become a reference)."""
         pose = calibrated or self.calibrated
         t0 = time.perf_counter()
         if labels is None:
@@ -325,7 +360,7 @@ class DriftChecker:
                               self.params, prepared=self.pmap)
         except ValueError as exc:
             return unknown(pose, str(exc), t0)
-        report = check_drift(problem, pose, self.drift, reference)
+        report = check_drift(problem, pose, self.drift, reference, size_always)
         return replace(report, seconds=time.perf_counter() - t0)
 
 

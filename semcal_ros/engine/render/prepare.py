@@ -19,6 +19,7 @@ import numpy as np
 
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import INVALID, LabelMapping
+from semcal_ros.engine.numerics import perturb_points
 
 CHUNK = 1024
 #: A point's intensity code when it has none (and the intensity image's empty pixel).
@@ -97,6 +98,8 @@ def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
     aligned = aligned[keep]
     raw = cloud.extra.get("intensity")
     intensity = None if raw is None else np.asarray(raw, dtype=np.float64).reshape(-1)[keep]
+    xyz, (moved, intensity) = perturb_points(xyz, aligned, intensity)  # SEMCAL_PERTURB only
+    aligned = aligned if moved is None else moved
     origin = np.asarray(center, dtype=np.float64) if center is not None else (
         xyz.mean(axis=0) if len(xyz) else np.zeros(3))
     if radius is not None and len(xyz):
