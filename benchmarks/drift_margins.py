@@ -26,8 +26,6 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-
 from semcal_ros.engine.drift import DriftChecker, DriftParams  # noqa: E402
 from semcal_ros.engine.drift_watch import DriftWatch  # noqa: E402
 from semcal_ros.engine.params import CalibrationParams  # noqa: E402
@@ -52,10 +50,11 @@ def scene(root: Path, kind: str, variant: str) -> Path:
 
 
 def offset(report, truth: Pose) -> str:
-    if report.sized_vector is None:
-        return "not sized"
-    at = Pose.from_vector(report.sized_vector)
-    return f"sized {translation_error(at, truth) * 100:.1f} cm / {rotation_error_deg(at, truth):.3f} deg"
+    if report.estimated is None:
+        return "no estimate"
+    at = report.estimated
+    return (f"ended {translation_error(at, truth) * 100:.1f} cm / "
+            f"{rotation_error_deg(at, truth):.3f} deg from the truth")
 
 
 def main() -> None:
@@ -97,15 +96,14 @@ def main() -> None:
             taken = offset(watch.reference, truth) if watch.reference else "not taken"
             print(f"{head} reference: {ref.report.level} ({taken}); "
                   f"same image from it: {same.level} {same.drift_translation_m * 100:.1f} cm "
-                  f"{same.evaluations} renders {same.seconds:.2f} s", flush=True)
+                  f"{same.evaluations} evaluations {same.seconds:.2f} s", flush=True)
             world = scene_world(kind, 0, variant, OPTIONS)
             if variant == "noisy_labels":
                 for i in range(3):
                     view = camera_view(kind, 0, variant, OPTIONS, truth, 1000 + i, world)
                     r = watch.check(checker, view).report
-                    net = r.raw_gain - watch.reference.raw_gain if watch.reference else np.nan
-                    print(f"{head} fresh {i}: {r.level:5s} coarse net gain {net * 100:5.1f} %, "
-                          f"full gain {r.full_gain * 100:5.1f} %, {r.message}", flush=True)
+                    print(f"{head} fresh {i}: {r.level:5s} {r.message}; {r.evaluations} "
+                          f"evaluations {r.seconds:.2f} s", flush=True)
             moved = knocked(truth)
             view = camera_view(kind, 0, variant, OPTIONS, moved,
                                "scene" if variant == "noisy_labels" else None, world)
@@ -116,8 +114,8 @@ def main() -> None:
                    if est is not None else "")
             print(f"{head} knock: {r.level:5s} sized {r.drift_translation_m * 100:.1f} cm / "
                   f"{r.drift_rotation_deg:.3f} deg (knock {KNOCK_M * 100:.0f} cm / {KNOCK_DEG} "
-                  f"deg), full gain {r.full_gain * 100:.1f} %, {off}; {r.evaluations} renders "
-                  f"{r.seconds:.2f} s", flush=True)
+                  f"deg), {off}; {r.message}; {r.evaluations} evaluations {r.seconds:.2f} s",
+                  flush=True)
 
 
 if __name__ == "__main__":

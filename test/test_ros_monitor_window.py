@@ -18,21 +18,24 @@ pytestmark = pytest.mark.ros
 
 
 def passing_cars(labels: np.ndarray, count: int) -> list[np.ndarray]:
-    """``count`` copies of ``labels``, each with a car (trainId 13) in another place of the road
-    half: every pixel shows its true class in all images but at most one."""
+    """``count`` copies of ``labels``, each with a car (trainId 13) in another place: every
+    pixel shows its true class in all images but at most one."""
     h, w = labels.shape
     out = []
     for k in range(count):
         im = labels.copy()
         x0 = (k * w) // count
-        im[h // 2 + 20:h // 2 + 120, x0:x0 + w // (2 * count)] = 13
+        # tall enough to cross class boundaries: the drift check compares the boundaries
+        im[h // 4:3 * h // 4, x0:x0 + w // (2 * count)] = 13
         out.append(im)
     return out
 
 
-def loss_at_calibration(demo_scene, labels: np.ndarray) -> float:
-    """The check's loss at the calibration for ``labels``, as the node computes it (the map
-    prepared as the node prepares it, default engine and drift parameters)."""
+def loss_at_calibration(demo_scene, labels: np.ndarray, reference: np.ndarray) -> float:
+    """The check's loss at the calibration for ``labels`` counted from the check of
+    ``reference`` (the monitor's first check), as the node computes it (the map prepared as the
+    node prepares it, default engine and drift parameters): with a reference, the boundary
+    charge between the two label images (engine/label_motion.py)."""
     from semcal_ros.engine.drift import DriftChecker, DriftParams, check_params
     from semcal_ros.engine.params import CalibrationParams
     from semcal_ros.engine.problem import mapping_for
@@ -46,7 +49,9 @@ def loss_at_calibration(demo_scene, labels: np.ndarray) -> float:
     checker = DriftChecker(EMPTY_CLOUD, read_camera_info(demo_scene / "camera_info.yaml"),
                            read_pose(demo_scene / "ground_truth.yaml"), engine, drift,
                            prepared=held.prepared)
-    return float(checker.check(labels).loss_calibrated)
+    first = checker.check(reference)
+    assert first.view is not None  # the reference keeps its image and the map's depth
+    return float(checker.check(labels, reference=first).loss_calibrated)
 
 
 def test_the_monitor_checks_the_fusion_of_its_label_window(tmp_path, demo_scene):
@@ -59,8 +64,9 @@ def test_the_monitor_checks_the_fusion_of_its_label_window(tmp_path, demo_scene)
     labels = read_label_image(demo_scene / "labels.png")
     images = passing_cars(labels, 3)
     assert np.array_equal(fuse_labels(images).labels, labels)  # the cars are outvoted
-    fused_loss = loss_at_calibration(demo_scene, labels)
-    newest_loss = loss_at_calibration(demo_scene, images[-1])
+    # the monitor's reference is its first check: the window holds images[0] alone then
+    fused_loss = loss_at_calibration(demo_scene, labels, images[0])
+    newest_loss = loss_at_calibration(demo_scene, images[-1], images[0])
     assert abs(newest_loss - fused_loss) > 1e-4  # the car in one image shows in its loss
     camera = read_camera_info(demo_scene / "camera_info.yaml")
     header = conv.make_header(camera.frame_id, 1700000002.5)

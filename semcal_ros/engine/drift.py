@@ -1,28 +1,26 @@
 """Drift check: is a camera's calibration still right, judged from its newest label image.
 
 Cameras get knocked, heat-soaked and re-aimed. Recalibrating every few minutes would cost a full
-search each time; asking instead whether a *small* search around the current calibration finds a
-clearly better pose costs a few dozen coarse renders. :func:`check_drift` does that on a
-:class:`~semcal_ros.engine.problem.Problem` (a prepared map shared between checks):
+search each time; a check asks a cheaper question. It has two forms:
 
-1. the loss at the calibration, at the check's resolution (``scale``);
-2. a Nelder-Mead search (:class:`~semcal_ros.engine.search.Search`, the engine's own) around it inside
-   small bounds (``bound_m``, ``bound_deg``): pan and tilt alone first (``turn_share`` of the
-   renders), then every free axis, at most ``max_evaluations`` renders in all;
-3. the drift is the distance from the calibration to the best pose found; it counts only if that
-   pose also lowers the loss by ``min_gain`` (relative to its excess over the loss's floor, the
-   value a perfect match would have: 0 for L2): a search always finds *some* pose a hair
-   better on noisy labels, and a real move of the camera lowers the loss by far more;
-4. a counted drift is sized by ``size_evaluations`` renders at ``size_scale`` (full) resolution
-   from there (the coarse search finds that the camera moved, not how far: it undersized the
-   demo's knock by half).
+* **from a reference** (every check after the monitor's first, ``semcal check --reference``):
+  :func:`check_motion` measures the camera's motion from the reference label image to the new one
+  with the map's depth at the calibration (:mod:`semcal_ros.engine.label_motion`: chamfer
+  matching of class boundaries, no render), with an uncertainty from the two image halves; the
+  motion counts when it stands ``motion_sigmas`` uncertainties out;
+* **against the map** (the first check, ``semcal check`` alone): :func:`check_drift` runs a
+  Nelder-Mead search (:class:`~semcal_ros.engine.search.Search`, the engine's own) around the
+  calibration inside small bounds at 1/``scale`` resolution (pan and tilt first, then every free
+  axis); a pose that lowers the loss by ``min_gain_absolute`` (relative to its excess over the
+  loss's floor) is sized at full resolution and counts only if the full-resolution loss drops by
+  ``min_gain_full`` too. Such a check keeps its image and the map's depth: the reference view.
 
 Levels: ``ok``; ``warn`` when the drift is above ``warn_translation_m`` or ``warn_rotation_deg``;
-``error`` above ``error_translation_m`` / ``error_rotation_deg`` or when the best pose lies at the
-search bounds (the camera moved further than the check can follow: recalibrate); ``unknown`` when
-the check cannot judge (no label image, the map covers too little of it, a degenerate view).
-The thresholds and how they were measured are in docs/drift.md. No ROS here: ``semcal check``
-and the ``calibration_monitor`` node both call :class:`DriftChecker`.
+``error`` above ``error_translation_m`` / ``error_rotation_deg``, beyond the check's bounds, or an
+image that no longer matches its reference (recalibrate); ``unknown`` when the check cannot judge
+(no label image, the map covers too little of it, a degenerate view). The thresholds and how they
+were measured are in docs/drift.md. No ROS here: ``semcal check`` and the ``calibration_monitor``
+node both call :class:`DriftChecker`.
 """
 
 from __future__ import annotations
@@ -31,17 +29,20 @@ import math
 import time
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.config import apply_flat, load_node_params
-from semcal_ros.engine.labels import LabelMapping
+from semcal_ros.engine.label_motion import Motion, ReferenceView, estimate_motion
+from semcal_ros.engine.labels import INVALID, LabelMapping
 from semcal_ros.engine.search import EvaluationCounter, Search
 from semcal_ros.engine.params import CalibrationParams, ScheduleParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Evaluation, Problem, mapping_for
 from semcal_ros.engine.render import PreparedMap, prepare_map
+from semcal_ros.engine.render.fast import render_with_keys
 from semcal_ros.errors import InputError, UnknownParameter
 
 LEVELS = ("ok", "warn", "error", "unknown")
@@ -66,6 +67,14 @@ class DriftParams:
     # lowers the loss by this much below the calibration's (relative to its excess over the
     # floor): the resolution that decides centimetres decides, not the coarse screen alone
     min_gain_full: float = 0.15
+    # with a reference image: the camera's motion since it, from the two label images
+    # (engine/label_motion.py), counts when it exceeds motion_sigmas x its own uncertainty (the
+    # two image halves) and explains motion_min_gain of the boundary charge at no motion
+    motion_sigmas: float = 3.0
+    motion_min_gain: float = 0.05
+    # ... and a new image whose boundaries stay this far from the reference's after the best
+    # motion (mean charge, 1 = everything beyond 6 px) no longer shows the reference's scene
+    motion_max_cost: float = 0.5
     min_coverage: float = 0.10  # the map must cover this share of the image's scene pixels
     # a counted drift is sized by a search at size_scale from the coarse estimate (the coarse
     # one undersized the demo's knock by half: at 1/4 resolution 0.3 deg is 0.6 px)
@@ -85,7 +94,7 @@ class DriftParams:
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"drift.{name} must be a finite number > 0, got {value}")
         for name in ("min_gain", "min_gain_absolute", "min_gain_full", "min_coverage",
-                     "turn_share"):
+                     "turn_share", "motion_min_gain", "motion_max_cost"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0 <= value < 1):
                 raise ValueError(f"drift.{name} must be in [0, 1), got {value}")
@@ -93,6 +102,9 @@ class DriftParams:
             value = getattr(self, name)
             if int(value) != value or not 1 <= value <= 16:
                 raise ValueError(f"drift.{name} must be an integer in 1..16, got {value}")
+        if not (math.isfinite(self.motion_sigmas) and self.motion_sigmas > 0):
+            raise ValueError(f"drift.motion_sigmas must be a finite number > 0, got "
+                             f"{self.motion_sigmas}")
         if int(self.max_evaluations) != self.max_evaluations or self.max_evaluations < 1:
             raise ValueError(f"drift.max_evaluations must be an integer >= 1, got "
                              f"{self.max_evaluations}")
@@ -138,10 +150,11 @@ class DriftReport:
     seconds: float = 0.0
     raw_vector: np.ndarray | None = None  # where the search ended (before any reference)
     raw_gain: float = 0.0  # its relative loss drop (before any reference)
-    # where the full-resolution sizing ended (None: not sized); a reference's is the origin
-    # later checks size their drift from
-    sized_vector: np.ndarray | None = None
     full_gain: float = math.nan  # the sized pose's relative loss drop at full resolution
+    # a check against the map keeps the image and the map's depth at the calibration: the
+    # reference view later checks measure the camera's motion from (None: not kept)
+    view: ReferenceView | None = None
+    motion: Motion | None = None  # a check against a reference view: the motion it measured
 
     @property
     def judged(self) -> bool:
@@ -165,6 +178,12 @@ class DriftReport:
             "coverage": round(self.coverage, 4), "evaluations": self.evaluations,
             **({} if math.isnan(self.full_gain) else
                {"full_resolution_gain": round(float(self.full_gain), 4)}),
+            **({} if self.motion is None else {"motion": {
+                "angle_deg": round(self.motion.angle_deg, 4),
+                "angle_sigma_deg": round(self.motion.angle_sigma_deg, 4),
+                "distance_m": round(self.motion.distance_m, 4),
+                "distance_sigma_m": round(self.motion.distance_sigma_m, 4),
+                "gain": round(self.motion.gain, 4), "samples": self.motion.samples}}),
             "seconds": round(self.seconds, 3),
             **({"estimated": {"translation": [float(v) for v in t.translation],
                               "rotation": [float(v) for v in t.quaternion]}} if t else {}),
@@ -236,7 +255,7 @@ def _relative_gain(problem: Problem, origin: Pose, found: Pose, stage: int) -> f
 
 
 def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = None,
-                reference: DriftReport | None = None, size_always: bool = False) -> DriftReport:
+                reference: DriftReport | None = None) -> DriftReport:
     """One check on a problem built with :func:`check_params` (its stage 0 is the check's
     resolution); see the module docstring.
 
@@ -245,9 +264,8 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     (reduced resolution moves the loss's minimum by a few cm / 0.1-0.2 deg, measured in
     docs/drift.md), nor does the full-resolution one when the loss is biased (the likelihood on
     ideal labels: a few cm); with a reference, drift and gains are counted from where the
-    reference's searches ended, so that offset is not reported as drift. ``size_always``: size
-    even when the screen finds nothing (a reference check: its full-resolution minimum is the
-    origin later checks size from)."""
+    reference's searches ended, so that offset is not reported as drift. (A reference that
+    kept its view is used by :func:`check_motion` instead.)"""
     dp = drift or DriftParams()
     t0 = time.perf_counter()
     # one render at the calibration serves its loss, coverage and floor
@@ -279,18 +297,11 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     offset = (raw_vec - calibrated.vector())[search.free] / search.scale
     at_bound = bool(np.any(np.abs(offset) > 0.95))
     screened = gain >= (dp.min_gain if referenced else dp.min_gain_absolute)
-    counted, full_gain, sized = screened, math.nan, None
-    if (screened or size_always) and not at_bound and dp.size_evaluations > 0:
-        # the full-resolution origin: the reference's own sized minimum when it has one (the
-        # loss's bias at the calibration is then not a drift), else the calibration
-        origin_vec = calibrated.vector()
-        if referenced and reference is not None and reference.sized_vector is not None:
-            origin_vec = reference.sized_vector
-        sized = _size(search, problem, vec, dp)
-        full_gain = _relative_gain(problem, Pose.from_vector(origin_vec),
-                                   Pose.from_vector(sized), SIZE_STAGE)
-        counted = screened and full_gain >= dp.min_gain_full
-        vec = sized - (origin_vec - calibrated.vector())
+    counted, full_gain = screened, math.nan
+    if screened and not at_bound and dp.size_evaluations > 0:
+        vec = _size(search, problem, vec, dp)
+        full_gain = _relative_gain(problem, calibrated, Pose.from_vector(vec), SIZE_STAGE)
+        counted = full_gain >= dp.min_gain_full
     best = Pose.from_vector(vec)
     dt = translation_error(best, calibrated)
     dr = rotation_error_deg(best, calibrated)
@@ -324,8 +335,75 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
                        (float(vec_d[0]), float(vec_d[1]), float(vec_d[2])), float(start.loss),
                        float(loss_best),
                        float(start.coverage), counter.evaluations + 1, seconds,
-                       raw_vector=raw_vec, raw_gain=float(raw_gain), sized_vector=sized,
-                       full_gain=float(full_gain))
+                       raw_vector=raw_vec, raw_gain=float(raw_gain),
+                       full_gain=float(full_gain), view=reference_view(problem, calibrated))
+
+
+def reference_view(problem: Problem, calibrated: Pose) -> ReferenceView:
+    """The problem's label image and the map's depth at ``calibrated`` (one full-resolution
+    render): what a later check measures the camera's motion against."""
+    view = problem.level(-1).setup.view(calibrated)
+    # every disc drawn at its centre's range (no depth falloff across it): the z-buffer then
+    # holds the range of the point seen there, not up to 1.3 x that at a disc's rim
+    view = replace(view, disc_falloff=np.ones_like(view.disc_falloff))
+    labels, keys = render_with_keys(problem.pmap, view)
+    depth = np.where(labels != INVALID, (keys >> 8).astype(np.float32) / 1000.0, np.nan)
+    return ReferenceView(problem.target, depth.astype(np.float32))
+
+
+def check_motion(reference: DriftReport, labels: np.ndarray, camera: CameraModel,
+                 calibrated: Pose, dp: DriftParams) -> DriftReport:
+    """One check from a reference that kept its view: the camera's motion from the reference
+    image to ``labels`` (aligned classes, full resolution; engine/label_motion.py), counted when
+    it stands ``motion_sigmas`` uncertainties out and explains ``motion_min_gain`` of the charge.
+    No render: the map enters through the reference's depth."""
+    assert reference.view is not None
+    t0 = time.perf_counter()
+    motion = estimate_motion(reference.view, labels, camera)
+    rot = _motion_rotation(motion)
+    moved = Pose.from_matrix(calibrated.rotation @ rot,
+                             calibrated.translation + calibrated.rotation @ motion.translation)
+    dt, dr = motion.distance_m, motion.angle_deg
+    k = dp.motion_sigmas
+    stands_out = dr > k * motion.angle_sigma_deg or dt > k * motion.distance_sigma_m
+    counted = stands_out and motion.gain >= dp.motion_min_gain
+    what = (f"drift {dt * 100:.1f} cm / {dr:.2f} deg (+- {motion.distance_sigma_m * 100:.1f} cm /"
+            f" {motion.angle_sigma_deg:.2f} deg)")
+    if motion.cost_after > dp.motion_max_cost:
+        level, why = "error", (f"the image no longer matches its reference (boundary charge "
+                               f"{motion.cost_after:.2f} > {dp.motion_max_cost:g} after the best "
+                               "motion): moved further than the check follows, recalibrate")
+        counted = True
+    elif counted and (dt > dp.bound_m or dr > dp.bound_deg):
+        level, why = "error", (f"{what} beyond the check's bounds ({dp.bound_m * 100:.0f} cm / "
+                               f"{dp.bound_deg:g} deg): recalibrate")
+    elif counted and (dt > dp.error_translation_m or dr > dp.error_rotation_deg):
+        level, why = "error", (f"{what} above {dp.error_translation_m * 100:.0f} cm / "
+                               f"{dp.error_rotation_deg:g} deg")
+    elif counted and (dt > dp.warn_translation_m or dr > dp.warn_rotation_deg):
+        level, why = "warn", (f"{what} above {dp.warn_translation_m * 100:.0f} cm / "
+                              f"{dp.warn_rotation_deg:g} deg")
+    elif counted:
+        level, why = "ok", (f"{what}, within {dp.warn_translation_m * 100:.0f} cm / "
+                            f"{dp.warn_rotation_deg:g} deg")
+    elif not stands_out:
+        level, why = "ok", (f"no move beyond its uncertainty since the reference ({what}, "
+                            f"< {k:g} x the +-)")
+    else:
+        level, why = "ok", (f"no clear move since the reference ({what} explains "
+                            f"{motion.gain * 100:.0f} % < {dp.motion_min_gain * 100:.0f} % of "
+                            "the boundaries' charge)")
+    vec_d = moved.translation - calibrated.translation if counted else np.zeros(3)
+    return DriftReport(level, why, calibrated, moved, float(dt) if counted else 0.0,
+                       float(dr) if counted else 0.0,
+                       (float(vec_d[0]), float(vec_d[1]), float(vec_d[2])),
+                       float(motion.cost_before), float(motion.cost_after),
+                       reference.coverage, motion.evaluations,
+                       time.perf_counter() - t0, motion=motion)
+
+
+def _motion_rotation(motion: Motion) -> np.ndarray:
+    return cv2.Rodrigues(np.asarray(motion.rotation_vector, np.float64).reshape(3, 1))[0]
 
 
 class DriftChecker:
@@ -346,21 +424,37 @@ class DriftChecker:
             radius=self.params.render.crop_radius or None)
 
     def check(self, labels: np.ndarray | None, calibrated: Pose | None = None,
-              reference: DriftReport | None = None, size_always: bool = False
-              ) -> DriftReport:
+              reference: DriftReport | None = None) -> DriftReport:
         """Check ``calibrated`` (default: the one given at construction) against ``labels``
-        (mono8 Cityscapes trainIds; None: no image yet), counted from ``reference`` if given
-        (see :func:`check_drift`; ``size_always`` for a check that may become a reference)."""
+        (mono8 Cityscapes trainIds; None: no image yet), counted from ``reference`` if given:
+        a reference that kept its view measures the camera's motion from its image
+        (:func:`check_motion`), otherwise against the map (:func:`check_drift`)."""
         pose = calibrated or self.calibrated
         t0 = time.perf_counter()
         if labels is None:
             return unknown(pose, "no label image yet")
+        if reference is not None and reference.view is not None and \
+                np.allclose(reference.calibrated.vector(), pose.vector(), atol=1e-9):
+            labels = np.asarray(labels)
+            if labels.ndim != 2 or labels.dtype != np.uint8 or \
+                    labels.shape != reference.view.labels.shape:
+                return unknown(pose, f"label image {labels.dtype} {labels.shape} does not fit "
+                                     f"the reference's {reference.view.labels.shape}")
+            try:
+                report = check_motion(reference, self.mapping.map_image(labels), self.camera,
+                                      pose, self.drift)
+            except ValueError as exc:  # too little in the reference to align: the map decides
+                report = None
+                why = str(exc)
+            if report is not None:
+                return replace(report, seconds=time.perf_counter() - t0)
+            reference = replace(reference, view=None, message=why)
         try:
             problem = Problem(self.map_cloud, labels, self.camera, pose.translation,
                               self.params, prepared=self.pmap)
         except ValueError as exc:
             return unknown(pose, str(exc), t0)
-        report = check_drift(problem, pose, self.drift, reference, size_always)
+        report = check_drift(problem, pose, self.drift, reference)
         return replace(report, seconds=time.perf_counter() - t0)
 
 

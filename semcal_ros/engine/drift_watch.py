@@ -115,11 +115,7 @@ class DriftWatch:
         """Run one check (from the reference, if any) of ``labels`` (with a window: of the
         window's fusion, :meth:`windowed`) and :meth:`observe` it."""
         epoch = self.epoch
-        # a check that may become the reference is sized even when it finds nothing: its
-        # full-resolution minimum is where later checks size their drift from
-        candidate = self.take_reference and not self.referenced
-        report = checker.check(self.windowed(labels), calibrated, reference=self.reference,
-                               size_always=candidate)
+        report = checker.check(self.windowed(labels), calibrated, reference=self.reference)
         return self.observe(report, epoch)
 
     def observe(self, report: DriftReport, epoch: int | None = None) -> Verdict:
@@ -132,7 +128,7 @@ class DriftWatch:
                 self.reference = report
                 report = replace(report, message=REFERENCE_MESSAGE, drift_translation_m=0.0,
                                  drift_rotation_deg=0.0, drift_xyz_m=(0.0, 0.0, 0.0),
-                                 raw_vector=None, raw_gain=0.0, sized_vector=None)
+                                 raw_vector=None, raw_gain=0.0, view=None)
         self.checks += 1
         self.last = report
         self.streak = (self.streak + [report.level])[-self.confirm:]
