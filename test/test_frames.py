@@ -117,7 +117,8 @@ def test_frames_need_one_schedule(world, target):
 
 
 def test_search_and_report_take_a_frame_set(rig):
-    params = CalibrationParams(verification=VerificationParams(starts=2))
+    # one verification start exercises the frame set in the verification as two did
+    params = CalibrationParams(verification=VerificationParams(starts=1))
     fs = FrameSet([Problem(m, t, camera(), PERTURBED_START.translation, params) for m, t in rig])
     result = solve(fs, PERTURBED_START, seed=1)
     assert translation_error(result.pose, GROUND_TRUTH) < 0.03
