@@ -19,7 +19,8 @@ from ros_helpers import RosGraph, publish_until, spin_until  # noqa: E402
 pytestmark = pytest.mark.ros
 
 CHEAP_ENGINE = {"engine.schedule.max_evaluations": [40, 20, 20],
-                "engine.schedule.restarts": [0, 0, 0], "engine.verification.starts": 0}
+                "engine.schedule.restarts": [0, 0, 0], "engine.verification.starts": 0,
+                "engine.quality.evidence_evaluations": 15}
 
 
 def passing_cars(labels: np.ndarray, count: int) -> list[np.ndarray]:

@@ -39,6 +39,7 @@ import numpy as np
 from semcal_ros.engine.labels import CITYSCAPES, INVALID, SKY
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 
+from semcal_ros.engine.evidence import Evidence, axis_offsets
 from semcal_ros.engine.results import QualityReport, RunResult
 
 
@@ -84,6 +85,15 @@ class QualityParams:
     basin_translation_m: float = 2.5
     basin_pitch_deg: float = 5.0
     basin_yaw_deg: float = 5.0
+    # the uncertainty from independent evidence (engine/evidence.py): each part's refinement
+    # from the result gets this many full-resolution evaluations (0: the loss-rise probes
+    # instead), and the reported +- is evidence_sigmas x its sigma per axis
+    evidence_evaluations: int = 60
+    evidence_sigmas: float = 2.0
+    # ... each from an initial simplex of this share of the search bounds (2.5 cm / 0.05 deg):
+    # the last stage's 0.03 left the refinements' own scatter in the +- (1.6 against 0.7 cm of
+    # sigma on the ideal demo junction, measured from the truth)
+    evidence_simplex: float = 0.01
 
     def __post_init__(self) -> None:
         for name in ("rise", "rise_abs", "min_agreement", "min_coverage", "rival_margin"):
@@ -96,6 +106,16 @@ class QualityParams:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"quality.{name} must be a finite number > 0, got {value}")
+        if int(self.evidence_evaluations) != self.evidence_evaluations or \
+                self.evidence_evaluations < 0:
+            raise ValueError(f"quality.evidence_evaluations must be an integer >= 0, got "
+                             f"{self.evidence_evaluations}")
+        if not (math.isfinite(self.evidence_simplex) and 0 < self.evidence_simplex <= 1):
+            raise ValueError(f"quality.evidence_simplex must be in (0, 1], got "
+                             f"{self.evidence_simplex}")
+        if not (math.isfinite(self.evidence_sigmas) and self.evidence_sigmas > 0):
+            raise ValueError(f"quality.evidence_sigmas must be a finite number > 0, got "
+                             f"{self.evidence_sigmas}")
         if self.bisections < 0:
             raise ValueError(f"quality.bisections must be >= 0, got {self.bisections}")
         if not (self.min_agreement <= 1 and self.min_coverage <= 1):
@@ -202,10 +222,14 @@ def beyond_basin(offset: tuple[float, float, float], params: QualityParams, yaw_
 
 def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
            params: QualityParams | None = None,
-           on_probe: Callable[[], None] | None = None, start: Pose | None = None) -> QualityReport:
+           on_probe: Callable[[], None] | None = None, start: Pose | None = None,
+           evidence: Evidence | None = None, at_bounds: bool = False) -> QualityReport:
     """The quality report of ``pose`` on ``problem`` (see the module docstring). ``runs`` are the
     verification runs of the calibration (empty for a pose from elsewhere, e.g. a drift check);
-    ``start`` its initial guess, judged against the measured basin (None: not judged)."""
+    ``start`` its initial guess, judged against the measured basin (None: not judged);
+    ``evidence`` the result refined on independent parts (engine/evidence.py): its sigma, x
+    ``evidence_sigmas``, is the uncertainty (None: the loss-rise probes measure it);
+    ``at_bounds``: the search ended at a face of its box (the answer may lie beyond)."""
     qp = params or problem.params.quality
     sp = problem.params.search
     rendered = problem.render(pose)  # one full-resolution render serves agreement and loss
@@ -215,28 +239,48 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     floor_full = problem.level(-1).loss.floor(rendered)
     at_full = problem.stages[qp.stage].scale == problem.stages[-1].scale
     bounds = (*sp.bound_xyz, sp.bound_roll_deg, sp.bound_pitch_deg, sp.bound_yaw_deg)
-    unc, spent = axis_uncertainty(problem, pose, qp, bounds, on_probe,
-                                  loss_full if at_full else None,
-                                  floor_full if at_full else None)
-    loose = tuple(AXES[i] for i in range(6)
-                  if unc[i] > (qp.max_translation_m if i < 3 else qp.max_rotation_deg))
-    if not sp.free_roll:
-        loose = tuple(a for a in loose if a != "roll")  # held fixed: not the search's to pin down
-    # verification runs: spread of the agreeing ones, rivals among the refined others
+    # verification runs: spread of the agreeing ones; the refined runs whose loss is as low
     best = [r for r in runs if r.basin == 0]
     dt = [translation_error(r.pose, pose) for r in best]
     dr = [rotation_error_deg(r.pose, pose) for r in best]
     loss_best = min((r.loss for r in runs if r.refined), default=math.inf)
-    rivals = [r for r in runs if r.refined and r.basin != 0
-              and r.loss <= loss_best + qp.rival_margin * max(loss_best - floor_full, 0.0)
-              and (translation_error(r.pose, pose) > qp.disagree_translation_m
-                   or rotation_error_deg(r.pose, pose) > qp.disagree_rotation_deg)]
+    as_low = [r for r in runs if r.refined
+              and r.loss <= loss_best + qp.rival_margin * max(loss_best - floor_full, 0.0)]
+    far = [r for r in as_low if r.basin != 0 and (
+        translation_error(r.pose, pose) > qp.disagree_translation_m
+        or rotation_error_deg(r.pose, pose) > qp.disagree_rotation_deg)]
+    cap = np.array(bounds, float)
+    contradicted: list = []
+    if evidence is not None:
+        # the independent evidence's +-, widened to every start that ended as low: those the
+        # evidence allows (within 3 x its +-) are the same answer's uncertainty; one beyond is
+        # a second answer the data supports as well: contradicted
+        unc = np.minimum(qp.evidence_sigmas * evidence.sigma, cap)
+        reach = max(3.0 * float(np.linalg.norm(unc[:3])), qp.disagree_translation_m)
+        reach_deg = max(3.0 * float(np.linalg.norm(unc[3:])), qp.disagree_rotation_deg)
+        contradicted = [r for r in far if translation_error(r.pose, pose) > reach
+                        or rotation_error_deg(r.pose, pose) > reach_deg]
+        for r in as_low:
+            unc = np.maximum(unc, np.minimum(np.abs(axis_offsets(r.pose, pose)), cap))
+        spent = 0
+    else:
+        unc, spent = axis_uncertainty(problem, pose, qp, bounds, on_probe,
+                                      loss_full if at_full else None,
+                                      floor_full if at_full else None)
+        contradicted = far
+    loose = tuple(AXES[i] for i in range(6)
+                  if unc[i] > (qp.max_translation_m if i < 3 else qp.max_rotation_deg))
+    if not sp.free_roll:
+        loose = tuple(a for a in loose if a != "roll")  # held fixed: not the search's to pin down
     if agreement < qp.min_agreement:
         verdict, reason = "failed", (f"labels agree on {agreement * 100:.0f} % of the pixels "
                                      f"(< {qp.min_agreement * 100:.0f} %): the map is not what "
                                      "the camera sees from here")
-    elif rivals:
-        r = min(rivals, key=lambda run: run.loss)
+    elif at_bounds:
+        verdict, reason = "failed", ("the result lies at the bounds of its start's prior: the "
+                                     "answer may lie beyond them")
+    elif contradicted:
+        r = min(contradicted, key=lambda run: run.loss)
         verdict, reason = "failed", (
             f"runs disagree: a start ended {translation_error(r.pose, pose):.2f} m / "
             f"{rotation_error_deg(r.pose, pose):.2f} deg away with a loss as low")
@@ -246,9 +290,12 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     elif loose:
         parts = [f"{a} +-{unc[AXES.index(a)] * (100 if AXES.index(a) < 3 else 1):.3g} "
                  f"{'cm' if AXES.index(a) < 3 else 'deg'}" for a in loose]
-        verdict, reason = "inconclusive", "unconstrained: " + ", ".join(parts)
+        more = "; more frames would narrow it" if evidence is not None else ""
+        verdict, reason = "inconclusive", "unconstrained: " + ", ".join(parts) + more
     else:
-        verdict, reason = "good", "every axis pinned down, labels agree"
+        verdict, reason = "good", ("every axis pinned down by independent evidence, labels agree"
+                                   if evidence is not None else
+                                   "every axis pinned down, labels agree")
     offset = start_offset(start, pose) if start is not None else None
     outside = beyond_basin(offset, qp, sp.yaw_search) if offset is not None else ""
     if outside:
@@ -264,8 +311,12 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         spread_translation_m=float(np.sqrt(np.mean(np.square(dt)))) if dt else 0.0,
         spread_rotation_deg=float(np.sqrt(np.mean(np.square(dr)))) if dr else 0.0,
         evaluations=spent + 1, roll_free=sp.free_roll, start_offset=offset,
-        start_outside_basin=bool(outside))
+        start_outside_basin=bool(outside),
+        uncertainty_method=evidence.method if evidence is not None else "loss rise",
+        evidence_sigma=tuple(float(v) for v in evidence.sigma) if evidence is not None else (),
+        evidence_moves=tuple(float(v) for v in evidence.moves) if evidence is not None else ())
 
 
 __all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
+
            "beyond_basin", "label_agreement", "start_offset"]

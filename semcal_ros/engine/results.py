@@ -50,6 +50,11 @@ class QualityReport:
     # given) and whether that lies beyond the measured basin (quality.basin_*)
     start_offset: tuple[float, float, float] | None = None
     start_outside_basin: bool = False
+    # how the uncertainty was measured: "loss rise" (the probes), or the independent evidence's
+    # method (engine/evidence.py) with its per-axis sigma and largest move (x y z m, r p y deg)
+    uncertainty_method: str = "loss rise"
+    evidence_sigma: tuple[float, ...] = ()
+    evidence_moves: tuple[float, ...] = ()
 
     def to_dict(self) -> dict:
         """The ``quality:`` group of a result YAML."""
@@ -66,6 +71,7 @@ class QualityReport:
             "unconstrained": list(self.unconstrained),
             "spread_translation_m": round(float(self.spread_translation_m), 4),
             "spread_rotation_deg": round(float(self.spread_rotation_deg), 4),
+            "uncertainty_method": self.uncertainty_method,
             **({"start_offset": {"translation_m": round(self.start_offset[0], 3),
                                  "pitch_deg": round(self.start_offset[1], 3),
                                  "yaw_deg": round(self.start_offset[2], 3)},

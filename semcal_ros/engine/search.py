@@ -27,6 +27,7 @@ from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.labels import LabelMapping
 from semcal_ros.engine.params import CalibrationParams
+from semcal_ros.engine.evidence import Evidence, evidence_uncertainty
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Problem
 from semcal_ros.engine.quality import QualityParams, assess
@@ -112,6 +113,14 @@ class Search:
                          np.radians(sp.bound_yaw_deg) if yaw else inf]) * factor
         self.box = (initial.vector(), half)
 
+    def at_face(self, v: np.ndarray, share: float = 0.98) -> bool:
+        """``v`` lies within (1 - ``share``) of a face of the box on some axis the box holds."""
+        if self.box is None:
+            return False
+        centre, half = self.box
+        held = np.isfinite(half) & (half > 0)
+        return bool(np.any(box_offset(v, centre)[held] > share * half[held]))
+
     def score(self, pose: Pose, stage: int) -> float:
         """What the search minimises: the problem's loss, or the degenerate loss outside the box,
         plus ``coverage_weight`` x the uncovered share of the labels' scene when set."""
@@ -133,10 +142,12 @@ class Search:
         return Pose.from_vector(v)
 
     def nelder_mead(self, stage: int, center: np.ndarray, run: int,
-                    max_evaluations: int | None = None) -> tuple[np.ndarray, float]:
+                    max_evaluations: int | None = None, simplex: float | None = None
+                    ) -> tuple[np.ndarray, float]:
         """One Nelder-Mead search of ``stage`` around ``center``: the best pose it evaluated
         (not its last simplex vertex) and that pose's loss. ``max_evaluations`` replaces the
-        stage's cap (the yaw search's short probes)."""
+        stage's cap (the yaw search's short probes), ``simplex`` the stage's initial simplex
+        (a share of the bounds)."""
         st = self.problem.stages[stage]
         cap = st.max_evaluations if max_evaluations is None else max_evaluations
         best: list = [np.inf, center]
@@ -164,7 +175,8 @@ class Search:
         n = len(self.free)
         try:
             minimize(objective, np.zeros(n), method="Nelder-Mead",
-                     options={"initial_simplex": _initial_simplex(n) * st.simplex,
+                     options={"initial_simplex": _initial_simplex(n) * (
+                                  st.simplex if simplex is None else simplex),
                               "xatol": self.problem.params.schedule.xatol, "fatol": st.fatol,
                               "maxfev": cap})
         except _Stalled:
@@ -370,6 +382,28 @@ def _agrees(a: Pose, b: Pose, qp: QualityParams) -> bool:
             and rotation_error_deg(a, b) <= qp.disagree_rotation_deg)
 
 
+def _evidence(problem: Problem, search: Search, pose: Pose) -> Evidence | None:
+    """The result refined again on independent parts of its evidence (engine/evidence.py), each
+    from the result at full resolution within the search's bounds, ``evidence_evaluations``
+    renders each; None when that is 0 (the loss-rise probes measure the uncertainty)."""
+    qp = problem.params.quality
+    if qp.evidence_evaluations <= 0:
+        return None
+    last = len(problem.stages) - 1
+
+    def refine(part: Problem, start: np.ndarray) -> np.ndarray:
+        alone = Search(part, search.counter)
+        alone.box = search.box
+        vec, loss = alone.nelder_mead(last, start, 0, max_evaluations=qp.evidence_evaluations,
+                                      simplex=qp.evidence_simplex)
+        # the simplex never evaluates its centre: the result itself stays the part's answer
+        # unless a vertex beat it
+        return vec if loss < alone.score(Pose.from_vector(start), last) else start
+
+    search.counter.begin_stage("uncertainty from independent evidence")
+    return evidence_uncertainty(problem, pose, refine)
+
+
 def solve(problem: Problem, initial: Pose, seed: int | None = None,
           progress: Callable[[Progress], None] | None = None,
           should_stop: Callable[[], bool] | None = None) -> CalibrationResult:
@@ -441,8 +475,10 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
         runs.append(RunResult(start, pose, float(loss), int(evals + extra), float(coarse[i][1]),
                               i in refined, order[basin[i]]))
     counter.begin_stage("quality report")
+    evidence = _evidence(problem, search, best_pose)
     # the report measures the agreeing starts' spread and the coverage: the result refers to it
-    quality = assess(problem, best_pose, runs, on_probe=counter.check, start=initial)
+    quality = assess(problem, best_pose, runs, on_probe=counter.check, start=initial,
+                     evidence=evidence, at_bounds=search.at_face(best_pose.vector()))
     return CalibrationResult(
         pose=best_pose, loss=float(best_loss), evaluations=counter.evaluations + quality.evaluations,
         seconds=time.perf_counter() - t0, history=counter.history, runs=runs,

@@ -1,0 +1,139 @@
+"""Issue 40: does the uncertainty from independent evidence (engine/evidence.py) cover the true
+error, on every real source, and what does it cost?
+
+For each set of real scene folders (one frame, or several frames of one rig: KITTI 00 frames share
+one extrinsic) and each of the paper's starts (truth + uniform +-2.5 m, +-5 deg pitch and yaw), the
+default calibration (``solve``), then its evidence: the result refined again on independent parts
+(leave-one-out, odd/even frames, tile halves) at full resolution. One JSON line per run: the true
+error per axis, the evidence's sigma and largest move per axis, the report's +- and verdict, the
+seconds of each.
+
+    python benchmarks/evidence_study.py run --scenes /work/scenes --sets kitti00_000556_esp \\
+        "kitti00_000556_esp,kitti00_002224_esp,kitti00_003892_esp" --starts 0 1 2 --out F.jsonl
+    python benchmarks/evidence_study.py table F.jsonl
+
+Scene folders: ``benchmarks/make_real_scenes.sh``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+
+from multiframe_study import engine_commit, load_frame, paper_starts  # noqa: E402
+
+
+def run(args: argparse.Namespace) -> None:
+    from semcal_ros.engine.evidence import axis_offsets
+    from semcal_ros.engine.frames import FrameSet
+    from semcal_ros.engine.params import CalibrationParams
+    from semcal_ros.engine.pose import rotation_error_deg, translation_error
+    from semcal_ros.engine.search import solve
+    from semcal_ros.errors import CalibrationFailed
+    from semcal_ros.io import files
+    from semcal_tools.protocol import initial_guesses
+
+    base = CalibrationParams.from_file(args.config)
+    out = Path(args.out)
+    have = {(r["set"], r["start"]) for r in map(json.loads, out.read_text().splitlines())} \
+        if out.is_file() else set()
+    for spec in args.sets:
+        names = spec.split(",")
+        for k in args.starts:
+            if (spec, k) in have:
+                continue
+            folders = [Path(args.scenes) / n for n in names]
+            truth = files.read_pose(folders[0] / "ground_truth.yaml")
+            start = initial_guesses(truth, paper_starts(args.starts))[k]
+            frames = [load_frame(f, base) for f in folders]
+            problems = [f.problem(start.translation) for f in frames]
+            problem = problems[0] if len(problems) == 1 else FrameSet(problems)
+            row: dict = {"set": spec, "frames": len(names), "start": k,
+                         "engine": engine_commit(), "load": round(os.getloadavg()[0], 2)}
+            t0, c0 = time.perf_counter(), time.process_time()
+            try:
+                res = solve(problem, start, seed=0)
+            except CalibrationFailed as exc:
+                row.update(error=str(exc))
+                with out.open("a") as fh:
+                    fh.write(json.dumps(row) + "\n")
+                continue
+            q = res.quality
+            row.update(
+                seconds=round(time.perf_counter() - t0, 2),
+                cpu_seconds=round(time.process_time() - c0, 2),
+                translation_cm=round(translation_error(res.pose, truth) * 100, 2),
+                rotation_deg=round(rotation_error_deg(res.pose, truth), 4),
+                error_axes=[round(v, 5) for v in axis_offsets(res.pose, truth)],
+                verdict=q.verdict, reason=q.reason,
+                reported=[*q.uncertainty_translation_m, *q.uncertainty_rpy_deg],
+                method=getattr(q, "uncertainty_method", ""),
+                evidence_sigma=list(getattr(q, "evidence_sigma", ()) or ()),
+                evidence_moves=list(getattr(q, "evidence_moves", ()) or ()),
+                agreement=round(q.agreement, 3), coverage=round(q.coverage, 3),
+                per_class={k: round(v, 3) for k, v in q.agreement_per_class.items()},
+                runs=[{"loss": round(r.loss, 6), "refined": r.refined, "basin": r.basin,
+                       "offset": [round(v, 5) for v in axis_offsets(r.pose, res.pose)]}
+                      for r in res.runs],
+                loss_value=round(res.loss, 6),
+                evaluations=res.evaluations, quality_evaluations=q.evaluations)
+            print(f"{spec} start {k}: {row['translation_cm']} cm / {row['rotation_deg']} deg, "
+                  f"{q.verdict} ({q.reason}), +- {np.round(row['reported'], 3)}, "
+                  f"{row['seconds']} s", flush=True)
+            with out.open("a") as fh:
+                fh.write(json.dumps(row) + "\n")
+
+
+def table(args: argparse.Namespace) -> None:
+    rows = [json.loads(line) for f in args.files for line in Path(f).read_text().splitlines()]
+    rows = [r for r in rows if "error" not in r]
+    print(f"{len(rows)} runs")
+    print("| set | start | error cm / deg | reported +- (x y z cm; r p y deg) | norm +- cm | "
+          "covered | verdict |")
+    print("|---|---|---|---|---|---|---|")
+    covered = []
+    for r in rows:
+        rep = np.array(r["reported"])
+        norm = float(np.linalg.norm(rep[:3])) * 100
+        ok = r["translation_cm"] <= norm
+        covered.append(ok)
+        print(f"| {r['set'][:40]} | {r['start']} | {r['translation_cm']:.1f} / "
+              f"{r['rotation_deg']:.2f} | {' '.join(f'{v * 100:.1f}' for v in rep[:3])}; "
+              f"{' '.join(f'{v:.2f}' for v in rep[3:])} | {norm:.1f} | {'yes' if ok else 'NO'} | "
+              f"{r['verdict']} |")
+    print(f"error inside the reported +- (norm): {sum(covered)}/{len(covered)}")
+    good = [r for r in rows if r["verdict"] == "good"]
+    bad_good = [r for r in good if r["translation_cm"] > 25 or r["rotation_deg"] > 0.5]
+    close = [r for r in rows if r["translation_cm"] <= 10 and r["rotation_deg"] <= 0.3]
+    failed_close = [r for r in close if r["verdict"] == "failed"]
+    print(f"good: {len(good)} (worse than 25 cm / 0.5 deg: {len(bad_good)}); within 10 cm / "
+          f"0.3 deg: {len(close)} (called good {sum(r['verdict'] == 'good' for r in close)}, "
+          f"failed {len(failed_close)})")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("run")
+    r.add_argument("--scenes", required=True)
+    r.add_argument("--sets", nargs="+", required=True, help="comma-joined folder names")
+    r.add_argument("--starts", nargs="+", type=int, default=[0])
+    r.add_argument("--config", default=None)
+    r.add_argument("--out", required=True)
+    t = sub.add_parser("table")
+    t.add_argument("files", nargs="+")
+    args = ap.parse_args()
+    run(args) if args.cmd == "run" else table(args)
+
+
+if __name__ == "__main__":
+    main()
