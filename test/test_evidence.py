@@ -110,8 +110,14 @@ def test_a_result_at_the_bounds_of_its_search_fails(problem):
 
     search = Search(problem, EvaluationCounter(None, None))
     search.confine(GROUND_TRUTH)
-    edge = moved(dx=problem.params.search.bound_xyz[0])
-    assert search.at_face(edge.vector()) and not search.at_face(moved(dx=0.5).vector())
+    bound = problem.params.search.bound_xyz[0]
+    # the truth at the face of a box centred 2.5 m away: near the face, but not held back there
+    search.confine(moved(dx=-bound))
+    assert not search.at_face(GROUND_TRUTH.vector(), problem.loss(GROUND_TRUTH))
+    # a box whose face lies 2.5 m short of the truth: a result held there, the loss falls beyond
+    search.confine(moved(dx=-2 * bound))
+    edge = moved(dx=-bound)
+    assert search.at_face(edge.vector(), problem.loss(edge))
     q = assess(problem, GROUND_TRUTH, (), evidence=_evidence(1.0, 0.01), at_bounds=True)
     assert q.verdict == "failed" and "bounds" in q.reason, q.summary()
 

@@ -46,6 +46,7 @@ class Evidence:
     moves: np.ndarray  # (6,) the largest move of a part's refinement from the result, per axis
     method: str  # "leave-one-out of 8 frames", "each of 2 frames alone", "... of 4 image strips"
     parts: int  # refinements run
+    frames: int = 1  # label images behind the result
 
 
 def axis_offsets(pose: Pose, reference: Pose) -> np.ndarray:
@@ -103,7 +104,8 @@ def evidence_uncertainty(problem: Any, pose: Pose,
         else:  # the jackknife
             variances.append((n - 1) / n * np.sum((thetas - thetas.mean(axis=0)) ** 2, axis=0))
     sigma = np.sqrt(np.mean(variances, axis=0))
-    return Evidence(sigma, moves, method, parts)
+    frames = getattr(problem, "frames", None)
+    return Evidence(sigma, moves, method, parts, len(frames) if frames is not None else 1)
 
 
 __all__ = ["STRIPS", "Evidence", "axis_offsets", "evidence_uncertainty", "independent_parts",

@@ -94,9 +94,17 @@ class QualityParams:
     # the last stage's 0.03 left the refinements' own scatter in the +- (1.6 against 0.7 cm of
     # sigma on the ideal demo junction, measured from the truth)
     evidence_simplex: float = 0.01
+    # one label image cannot show a bias all its pixels share (a labeller that calls every
+    # facade vegetation moves every strip alike): below trusted_agreement, a single frame's +-
+    # is at least the floor its kind was measured off by (docs/quality.md: 90th percentile per
+    # axis of 45 real single-frame results of KITTI 00, KITTI object and PJLab)
+    trusted_agreement: float = 0.9
+    single_frame_floor_m: float = 1.0
+    single_frame_floor_deg: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("rise", "rise_abs", "min_agreement", "min_coverage", "rival_margin"):
+        for name in ("rise", "rise_abs", "min_agreement", "min_coverage", "rival_margin",
+                     "trusted_agreement", "single_frame_floor_m", "single_frame_floor_deg"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"quality.{name} must be a finite number >= 0, got {value}")
@@ -251,11 +259,18 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         or rotation_error_deg(r.pose, pose) > qp.disagree_rotation_deg)]
     cap = np.array(bounds, float)
     contradicted: list = []
+    note = ""
     if evidence is not None:
         # the independent evidence's +-, widened to every start that ended as low: those the
         # evidence allows (within 3 x its +-) are the same answer's uncertainty; one beyond is
         # a second answer the data supports as well: contradicted
         unc = np.minimum(qp.evidence_sigmas * evidence.sigma, cap)
+        if evidence.frames == 1 and agreement < qp.trusted_agreement:
+            floor = np.array([qp.single_frame_floor_m] * 3 + [qp.single_frame_floor_deg] * 3)
+            unc = np.maximum(unc, np.minimum(floor, cap))
+            note = (f"; one label image whose labels disagree with the map on "
+                    f"{(1 - agreement) * 100:.0f} % of the pixels cannot show a bias they all "
+                    "share: calibrate 3 or more frames together")
         reach = max(3.0 * float(np.linalg.norm(unc[:3])), qp.disagree_translation_m)
         reach_deg = max(3.0 * float(np.linalg.norm(unc[3:])), qp.disagree_rotation_deg)
         contradicted = [r for r in far if translation_error(r.pose, pose) > reach
@@ -290,7 +305,7 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     elif loose:
         parts = [f"{a} +-{unc[AXES.index(a)] * (100 if AXES.index(a) < 3 else 1):.3g} "
                  f"{'cm' if AXES.index(a) < 3 else 'deg'}" for a in loose]
-        more = "; more frames would narrow it" if evidence is not None else ""
+        more = note or ("; more frames would narrow it" if evidence is not None else "")
         verdict, reason = "inconclusive", "unconstrained: " + ", ".join(parts) + more
     else:
         verdict, reason = "good", ("every axis pinned down by independent evidence, labels agree"
