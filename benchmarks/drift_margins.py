@@ -21,10 +21,14 @@ from __future__ import annotations
 import argparse
 import os
 import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_drift import KINDS, OPTIONS, VARIANTS, scene  # noqa: E402
 
 from semcal_ros.engine.drift import DriftChecker, DriftParams  # noqa: E402
 from semcal_ros.engine.drift_watch import DriftWatch  # noqa: E402
@@ -32,21 +36,7 @@ from semcal_ros.engine.params import CalibrationParams  # noqa: E402
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error  # noqa: E402
 from semcal_ros.io import files, ply  # noqa: E402
 from semcal_tools.live_demo import KNOCK_DEG, KNOCK_M, knocked  # noqa: E402
-from semcal_tools.scenes import SIZES, generate_scene  # noqa: E402
 from semcal_tools.scenes.generate import camera_view, scene_world  # noqa: E402
-
-KINDS = ("junction", "roundabout", "arterial", "highway")
-VARIANTS = ("ideal", "noisy_labels")
-OPTIONS = SIZES["small"]
-
-
-def scene(root: Path, kind: str, variant: str) -> Path:
-    out = root / f"{kind}-{variant}"
-    if not (out / "scene.yaml").is_file():
-        generate_scene(out, kind, 0, variant, replace(OPTIONS, write_bag=False,
-                                                      write_scans=False), force=True,
-                       progress=False)
-    return out
 
 
 def offset(report, truth: Pose) -> str:

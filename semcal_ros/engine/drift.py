@@ -254,6 +254,18 @@ def _relative_gain(problem: Problem, origin: Pose, found: Pose, stage: int) -> f
     return (loss0 - problem.loss(found, stage)) / excess if excess > 0 else 0.0
 
 
+def graded(what: str, dt: float, dr: float, dp: DriftParams) -> tuple[str, str]:
+    """The level of a counted drift of ``dt`` m / ``dr`` deg (``what`` describes it) and why."""
+    if dt > dp.error_translation_m or dr > dp.error_rotation_deg:
+        return "error", (f"{what} above {dp.error_translation_m * 100:.0f} cm / "
+                         f"{dp.error_rotation_deg:g} deg")
+    if dt > dp.warn_translation_m or dr > dp.warn_rotation_deg:
+        return "warn", (f"{what} above {dp.warn_translation_m * 100:.0f} cm / "
+                        f"{dp.warn_rotation_deg:g} deg")
+    return "ok", (f"{what}, within {dp.warn_translation_m * 100:.0f} cm / "
+                  f"{dp.warn_rotation_deg:g} deg")
+
+
 def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = None,
                 reference: DriftReport | None = None) -> DriftReport:
     """One check on a problem built with :func:`check_params` (its stage 0 is the check's
@@ -310,15 +322,8 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
     if screened and at_bound:
         level, why = "error", (f"{what} at the check's bounds ({dp.bound_m * 100:.0f} cm / "
                                f"{dp.bound_deg:g} deg): moved further, recalibrate")
-    elif counted and (dt > dp.error_translation_m or dr > dp.error_rotation_deg):
-        level, why = "error", (f"{what} above {dp.error_translation_m * 100:.0f} cm / "
-                               f"{dp.error_rotation_deg:g} deg")
-    elif counted and (dt > dp.warn_translation_m or dr > dp.warn_rotation_deg):
-        level, why = "warn", (f"{what} above {dp.warn_translation_m * 100:.0f} cm / "
-                              f"{dp.warn_rotation_deg:g} deg")
     elif counted:
-        level, why = "ok", f"{what}, within {dp.warn_translation_m * 100:.0f} cm / " \
-                           f"{dp.warn_rotation_deg:g} deg"
+        level, why = graded(what, dt, dr, dp)
     elif screened:
         level, why = "ok", (f"no clearly better pose nearby (the best, {what} away, lowers "
                             f"the loss at full resolution by {full_gain * 100:.1f} % < "
@@ -377,15 +382,8 @@ def check_motion(reference: DriftReport, labels: np.ndarray, camera: CameraModel
     elif counted and (dt > dp.bound_m or dr > dp.bound_deg):
         level, why = "error", (f"{what} beyond the check's bounds ({dp.bound_m * 100:.0f} cm / "
                                f"{dp.bound_deg:g} deg): recalibrate")
-    elif counted and (dt > dp.error_translation_m or dr > dp.error_rotation_deg):
-        level, why = "error", (f"{what} above {dp.error_translation_m * 100:.0f} cm / "
-                               f"{dp.error_rotation_deg:g} deg")
-    elif counted and (dt > dp.warn_translation_m or dr > dp.warn_rotation_deg):
-        level, why = "warn", (f"{what} above {dp.warn_translation_m * 100:.0f} cm / "
-                              f"{dp.warn_rotation_deg:g} deg")
     elif counted:
-        level, why = "ok", (f"{what}, within {dp.warn_translation_m * 100:.0f} cm / "
-                            f"{dp.warn_rotation_deg:g} deg")
+        level, why = graded(what, dt, dr, dp)
     elif not stands_out:
         level, why = "ok", (f"no move beyond its uncertainty since the reference ({what}, "
                             f"< {k:g} x the +-)")
