@@ -13,6 +13,7 @@ from semcal_tools.protocol import (
     ProtocolParams, evaluate_scene, format_table, initial_guesses, summarize,
 )
 from semcal_ros.io.files import pose_from_dict, read_pose
+from semcal_ros.engine.evidence import STRIPS
 from semcal_ros.engine.quality import VERDICTS
 from semcal_ros.engine.params import CalibrationParams, ScheduleParams, VerificationParams
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
@@ -72,8 +73,10 @@ def test_a_tiny_real_evaluation_reports_its_own_runs(demo_scene: Path):
         np.testing.assert_allclose(run.start.translation, start.translation)
         assert run.translation_m == pytest.approx(translation_error(run.pose, truth))
         assert run.rotation_deg == pytest.approx(rotation_error_deg(run.pose, truth))
-        # the schedule's renders plus the quality report's probes (at most 12 per axis side)
-        assert 0 < run.evaluations <= 60 + 5 + 2 + 6 * 2 * 12 and run.loss >= 0
+        # the schedule's renders plus the uncertainty's refinements on the four image strips
+        # (engine/evidence.py) and the report's render
+        evidence = STRIPS * (CHEAP.quality.evidence_evaluations + 1)
+        assert 0 < run.evaluations <= 60 + 5 + 2 + evidence and run.loss >= 0
         assert run.quality["verdict"] in VERDICTS and len(run.quality["uncertainty_rpy_deg"]) == 3
     # the optimiser moved every start closer to the truth
     assert np.mean([r.translation_m for r in res.runs]) < np.mean(
