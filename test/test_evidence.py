@@ -103,6 +103,8 @@ def test_a_start_as_low_joins_the_uncertainty_or_contradicts_the_result(problem)
     runs[1] = RunResult(far, far, as_low, 10, loss, True, 1)
     q = assess(problem, GROUND_TRUTH, runs, evidence=ev)
     assert q.verdict == "failed" and "runs disagree" in q.reason, q.summary()
+    # a failed result says no more than its prior: the +- is the search's bounds
+    assert q.uncertainty_translation_m == problem.params.search.bound_xyz
 
 
 def test_a_result_at_the_bounds_of_its_search_fails(problem):

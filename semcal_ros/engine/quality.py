@@ -287,18 +287,22 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
                   if unc[i] > (qp.max_translation_m if i < 3 else qp.max_rotation_deg))
     if not sp.free_roll:
         loose = tuple(a for a in loose if a != "roll")  # held fixed: not the search's to pin down
+    failure = ""
     if agreement < qp.min_agreement:
-        verdict, reason = "failed", (f"labels agree on {agreement * 100:.0f} % of the pixels "
-                                     f"(< {qp.min_agreement * 100:.0f} %): the map is not what "
-                                     "the camera sees from here")
+        failure = (f"labels agree on {agreement * 100:.0f} % of the pixels (< "
+                   f"{qp.min_agreement * 100:.0f} %): the map is not what the camera sees from "
+                   "here")
     elif at_bounds:
-        verdict, reason = "failed", ("the result lies at the bounds of its start's prior: the "
-                                     "answer may lie beyond them")
+        failure = "the result lies at the bounds of its start's prior: the answer may lie beyond"
     elif contradicted:
         r = min(contradicted, key=lambda run: run.loss)
-        verdict, reason = "failed", (
-            f"runs disagree: a start ended {translation_error(r.pose, pose):.2f} m / "
-            f"{rotation_error_deg(r.pose, pose):.2f} deg away with a loss as low")
+        failure = (f"runs disagree: a start ended {translation_error(r.pose, pose):.2f} m / "
+                   f"{rotation_error_deg(r.pose, pose):.2f} deg away with a loss as low")
+    if failure:
+        verdict, reason = "failed", failure
+        if evidence is not None:  # a failed result says no more than the prior: its bounds
+            unc = np.where(np.arange(6) == 3, unc, cap) if not sp.free_roll else cap.copy()
+            loose = tuple(a for a in AXES if a != "roll" or sp.free_roll)
     elif coverage < qp.min_coverage:
         verdict, reason = "inconclusive", (f"the map covers {coverage * 100:.0f} % of the image "
                                            f"(< {qp.min_coverage * 100:.0f} %)")
