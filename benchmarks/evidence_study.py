@@ -107,8 +107,10 @@ def rescaled(r: dict, k: float) -> np.ndarray:
     the starts that ended as low (where the reported +- exceeded 2 x sigma)."""
     sigma = np.array(r["evidence_sigma"])
     rep = np.array(r["reported"])
-    if r["verdict"] == "failed":  # the search's bounds (what the engine reports since 996dbe5+1)
-        return np.array([2.5, 2.5, 2.5, 0.0, 5.0, 5.0])
+    bounds = np.array([2.5, 2.5, 2.5, 0.0, 5.0, 5.0])  # the default search bounds, roll fixed
+    if r["verdict"] == "failed":  # a failed result's +- is its bounds (the engine's rule)
+        return bounds
+    sigma = np.maximum(sigma, 0.5 * 0.01 * bounds)  # the refinements' resolution (the engine's)
     widened = np.where(rep > 2.0 * sigma + 1e-9, rep, 0.0)
     return np.maximum(k * sigma, widened)
 

@@ -264,7 +264,12 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         # the independent evidence's +-, widened to every start that ended as low: those the
         # evidence allows (within 3 x its +-) are the same answer's uncertainty; one beyond is
         # a second answer the data supports as well: contradicted
-        unc = np.minimum(qp.evidence_sigmas * evidence.sigma, cap)
+        # never below the refinements' own resolution (half their initial simplex): parts that
+        # all stayed at the result say it is within that, not that it is exact
+        sigma = np.maximum(evidence.sigma, 0.5 * qp.evidence_simplex * cap)
+        if not sp.free_roll:
+            sigma[3] = 0.0
+        unc = np.minimum(qp.evidence_sigmas * sigma, cap)
         if evidence.frames == 1 and agreement < qp.trusted_agreement:
             floor = np.array([qp.single_frame_floor_m] * 3 + [qp.single_frame_floor_deg] * 3)
             unc = np.maximum(unc, np.minimum(floor, cap))
