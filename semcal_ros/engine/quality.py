@@ -89,7 +89,12 @@ class QualityParams:
     # from the result gets this many full-resolution evaluations (0: the loss-rise probes
     # instead), and the reported +- is evidence_sigmas x its sigma per axis
     evidence_evaluations: int = 60
-    evidence_sigmas: float = 2.0
+    evidence_sigmas: float = 3.0
+    # with the evidence, a start as low counts as a contradiction (failed) only beyond 3 x the
+    # +- and beyond these; nearer, it widens the +- (a KITTI 3-frame result 3.3 cm off had a
+    # start 0.11 m / 0.38 deg away as low: the same answer's uncertainty, not a second answer)
+    contradict_translation_m: float = 1.0
+    contradict_rotation_deg: float = 1.0
     # ... each from an initial simplex of this share of the search bounds (2.5 cm / 0.05 deg):
     # the last stage's 0.03 left the refinements' own scatter in the +- (1.6 against 0.7 cm of
     # sigma on the ideal demo junction, measured from the truth)
@@ -104,7 +109,8 @@ class QualityParams:
 
     def __post_init__(self) -> None:
         for name in ("rise", "rise_abs", "min_agreement", "min_coverage", "rival_margin",
-                     "trusted_agreement", "single_frame_floor_m", "single_frame_floor_deg"):
+                     "trusted_agreement", "single_frame_floor_m", "single_frame_floor_deg",
+                     "contradict_translation_m", "contradict_rotation_deg"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"quality.{name} must be a finite number >= 0, got {value}")
@@ -276,8 +282,8 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
             note = (f"; one label image whose labels disagree with the map on "
                     f"{(1 - agreement) * 100:.0f} % of the pixels cannot show a bias they all "
                     "share: calibrate 3 or more frames together")
-        reach = max(3.0 * float(np.linalg.norm(unc[:3])), qp.disagree_translation_m)
-        reach_deg = max(3.0 * float(np.linalg.norm(unc[3:])), qp.disagree_rotation_deg)
+        reach = max(3.0 * float(np.linalg.norm(unc[:3])), qp.contradict_translation_m)
+        reach_deg = max(3.0 * float(np.linalg.norm(unc[3:])), qp.contradict_rotation_deg)
         contradicted = [r for r in far if translation_error(r.pose, pose) > reach
                         or rotation_error_deg(r.pose, pose) > reach_deg]
         for r in as_low:
