@@ -107,10 +107,15 @@ def rescaled(r: dict, k: float) -> np.ndarray:
     the starts that ended as low (where the reported +- exceeded 2 x sigma)."""
     sigma = np.array(r["evidence_sigma"])
     rep = np.array(r["reported"])
-    bounds = np.array([2.5, 2.5, 2.5, 0.0, 5.0, 5.0])  # the default search bounds, roll fixed
+    from semcal_ros.engine.params import CalibrationParams
+
+    p = CalibrationParams()  # the defaults the runs used: search bounds (roll held), simplex
+    bounds = np.array([*p.search.bound_xyz, 0.0, p.search.bound_pitch_deg,
+                       p.search.bound_yaw_deg])
     if r["verdict"] == "failed":  # a failed result's +- is its bounds (the engine's rule)
         return bounds
-    sigma = np.maximum(sigma, 0.5 * 0.01 * bounds)  # the refinements' resolution (the engine's)
+    # never below the refinements' resolution (the engine's rule)
+    sigma = np.maximum(sigma, 0.5 * p.quality.evidence_simplex * bounds)
     widened = np.where(rep > 2.0 * sigma + 1e-9, rep, 0.0)
     return np.maximum(k * sigma, widened)
 

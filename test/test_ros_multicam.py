@@ -24,7 +24,7 @@ from test_ros_calibrator import (assert_empty_transform, assert_quality,  # noqa
 
 pytestmark = pytest.mark.ros
 
-#: Cheap, but enough to land within a few cm on this clean scene (about 4 s a goal).
+#: Cheap (about 4 s a goal): each result is judged against the offline engine's, not its error.
 ENGINE = {"engine.schedule.max_evaluations": [120, 40, 30],
           "engine.schedule.restarts": [0, 0, 0], "engine.verification.starts": 0,
           "engine.quality.evidence_evaluations": 15}

@@ -29,7 +29,6 @@ import math
 import time
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
@@ -89,7 +88,8 @@ class DriftParams:
 
     def __post_init__(self) -> None:
         for name in ("bound_m", "bound_deg", "simplex", "size_simplex", "warn_translation_m",
-                     "warn_rotation_deg", "error_translation_m", "error_rotation_deg"):
+                     "warn_rotation_deg", "error_translation_m", "error_rotation_deg",
+                     "motion_sigmas"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"drift.{name} must be a finite number > 0, got {value}")
@@ -102,9 +102,6 @@ class DriftParams:
             value = getattr(self, name)
             if int(value) != value or not 1 <= value <= 16:
                 raise ValueError(f"drift.{name} must be an integer in 1..16, got {value}")
-        if not (math.isfinite(self.motion_sigmas) and self.motion_sigmas > 0):
-            raise ValueError(f"drift.motion_sigmas must be a finite number > 0, got "
-                             f"{self.motion_sigmas}")
         if int(self.max_evaluations) != self.max_evaluations or self.max_evaluations < 1:
             raise ValueError(f"drift.max_evaluations must be an integer >= 1, got "
                              f"{self.max_evaluations}")
@@ -341,7 +338,9 @@ def check_drift(problem: Problem, calibrated: Pose, drift: DriftParams | None = 
                        float(loss_best),
                        float(start.coverage), counter.evaluations + 1, seconds,
                        raw_vector=raw_vec, raw_gain=float(raw_gain),
-                       full_gain=float(full_gain), view=reference_view(problem, calibrated))
+                       full_gain=float(full_gain),
+                       # only a check without a reference can become one (DriftWatch)
+                       view=reference_view(problem, calibrated) if reference is None else None)
 
 
 def reference_view(problem: Problem, calibrated: Pose) -> ReferenceView:
@@ -365,8 +364,7 @@ def check_motion(reference: DriftReport, labels: np.ndarray, camera: CameraModel
     assert reference.view is not None
     t0 = time.perf_counter()
     motion = estimate_motion(reference.view, labels, camera)
-    rot = _motion_rotation(motion)
-    moved = Pose.from_matrix(calibrated.rotation @ rot,
+    moved = Pose.from_matrix(calibrated.rotation @ motion.rotation,
                              calibrated.translation + calibrated.rotation @ motion.translation)
     dt, dr = motion.distance_m, motion.angle_deg
     k = dp.motion_sigmas
@@ -398,10 +396,6 @@ def check_motion(reference: DriftReport, labels: np.ndarray, camera: CameraModel
                        float(motion.cost_before), float(motion.cost_after),
                        reference.coverage, motion.evaluations,
                        time.perf_counter() - t0, motion=motion)
-
-
-def _motion_rotation(motion: Motion) -> np.ndarray:
-    return cv2.Rodrigues(np.asarray(motion.rotation_vector, np.float64).reshape(3, 1))[0]
 
 
 class DriftChecker:
@@ -441,12 +435,9 @@ class DriftChecker:
             try:
                 report = check_motion(reference, self.mapping.map_image(labels), self.camera,
                                       pose, self.drift)
-            except ValueError as exc:  # too little in the reference to align: the map decides
-                report = None
-                why = str(exc)
-            if report is not None:
                 return replace(report, seconds=time.perf_counter() - t0)
-            reference = replace(reference, view=None, message=why)
+            except ValueError:  # too little in the reference to align: the map decides
+                reference = replace(reference, view=None)
         try:
             problem = Problem(self.map_cloud, labels, self.camera, pose.translation,
                               self.params, prepared=self.pmap)

@@ -72,6 +72,11 @@ class Motion:
     evaluations: int
 
     @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) R: the new camera's axes in the reference optical frame."""
+        return _rotation(self.rotation_vector)
+
+    @property
     def angle_deg(self) -> float:
         return float(np.degrees(np.linalg.norm(self.rotation_vector)))
 
@@ -148,13 +153,13 @@ class _Charge:
                   params: np.ndarray) -> np.ndarray:
         p = params * UNIT
         moved = (points - p[3:]) @ _rotation(p[:3])  # R.T @ (X - t), row-wise
-        uv, ok = camera.project(moved)
+        uv, _ = camera.project(moved)
         out = np.ones(len(points))
         # a sample that leaves the image is charged where it left (clamped to the border): a
         # full charge would make every move that pushes the border's samples out look worse
         u = np.clip(uv[:, 0], 0.0, self.w - 1.0)
         v = np.clip(uv[:, 1], 0.0, self.h - 1.0)
-        ok |= np.isfinite(uv).all(axis=1)
+        ok = np.isfinite(uv).all(axis=1)  # inside the image or not: clamped above
         for c, field in self.fields.items():
             sel = ok & (classes == c)
             if sel.any():

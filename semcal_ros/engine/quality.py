@@ -90,15 +90,15 @@ class QualityParams:
     # instead), and the reported +- is evidence_sigmas x its sigma per axis
     evidence_evaluations: int = 60
     evidence_sigmas: float = 3.0
+    # ... each from an initial simplex of this share of the search bounds (2.5 cm / 0.05 deg):
+    # the last stage's 0.03 left the refinements' own scatter in the +- (1.6 against 0.7 cm of
+    # sigma on the ideal demo junction, measured from the truth)
+    evidence_simplex: float = 0.01
     # with the evidence, a start as low counts as a contradiction (failed) only beyond 3 x the
     # +- and beyond these; nearer, it widens the +- (a KITTI 3-frame result 3.3 cm off had a
     # start 0.11 m / 0.38 deg away as low: the same answer's uncertainty, not a second answer)
     contradict_translation_m: float = 1.0
     contradict_rotation_deg: float = 1.0
-    # ... each from an initial simplex of this share of the search bounds (2.5 cm / 0.05 deg):
-    # the last stage's 0.03 left the refinements' own scatter in the +- (1.6 against 0.7 cm of
-    # sigma on the ideal demo junction, measured from the truth)
-    evidence_simplex: float = 0.01
     # one label image cannot show a bias all its pixels share (a labeller that calls every
     # facade vegetation moves every strip alike): below trusted_agreement, a single frame's +-
     # is at least the floor its kind was measured off by (docs/quality.md: 90th percentile per
@@ -116,7 +116,7 @@ class QualityParams:
                 raise ValueError(f"quality.{name} must be a finite number >= 0, got {value}")
         for name in ("step_m", "step_deg", "max_translation_m", "max_rotation_deg",
                      "disagree_translation_m", "disagree_rotation_deg", "basin_translation_m",
-                     "basin_pitch_deg", "basin_yaw_deg"):
+                     "basin_pitch_deg", "basin_yaw_deg", "evidence_sigmas"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"quality.{name} must be a finite number > 0, got {value}")
@@ -127,9 +127,6 @@ class QualityParams:
         if not (math.isfinite(self.evidence_simplex) and 0 < self.evidence_simplex <= 1):
             raise ValueError(f"quality.evidence_simplex must be in (0, 1], got "
                              f"{self.evidence_simplex}")
-        if not (math.isfinite(self.evidence_sigmas) and self.evidence_sigmas > 0):
-            raise ValueError(f"quality.evidence_sigmas must be a finite number > 0, got "
-                             f"{self.evidence_sigmas}")
         if self.bisections < 0:
             raise ValueError(f"quality.bisections must be >= 0, got {self.bisections}")
         if not (self.min_agreement <= 1 and self.min_coverage <= 1):
@@ -267,11 +264,11 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     contradicted: list = []
     note = ""
     if evidence is not None:
-        # the independent evidence's +-, widened to every start that ended as low: those the
-        # evidence allows (within 3 x its +-) are the same answer's uncertainty; one beyond is
-        # a second answer the data supports as well: contradicted
-        # never below the refinements' own resolution (half their initial simplex): parts that
-        # all stayed at the result say it is within that, not that it is exact
+        # the independent evidence's +-, never below the refinements' own resolution (half
+        # their initial simplex: parts that all stayed at the result say it is within that, not
+        # that it is exact), widened to every start that ended as low: those the evidence
+        # allows (within 3 x its +-) are the same answer's uncertainty; one beyond is a second
+        # answer the data supports as well: contradicted
         sigma = np.maximum(evidence.sigma, 0.5 * qp.evidence_simplex * cap)
         if not sp.free_roll:
             sigma[3] = 0.0
@@ -348,5 +345,4 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
 
 
 __all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
-
            "beyond_basin", "label_agreement", "start_offset"]
