@@ -58,6 +58,13 @@ SETTINGS = {
     "sky_masked": (D, "sky_masked", 0.0),
     "voxel_10cm": (D, None, 0.10),
     "radius_max_16": (_with(D, render={"radius_max": 16.0}), None, 0.0),
+    "l2_band": (_with(D, loss={"kind": "l2"}), None, 0.0),
+    "lik_reestimated": (_with(D, loss={"kind": "likelihood", "em": False}), None, 0.0),
+    "lik_em_ep100": (_with(D, loss={"kind": "likelihood", "em": True, "em_prior_pixels": 100.0}),
+                     None, 0.0),
+    "lik_em_ep100_noband": (_with(D, loss={"kind": "likelihood", "em": True,
+                                           "em_prior_pixels": 100.0, "boundary_band_px": 0.0}),
+                            None, 0.0),
     "paper_render": (_with(D, render={"splat_lambda": PAPER_LAMBDA, "depth_falloff": 0.0,
                                       "depth_falloff_coarse": 0.0, "lod_radius": 0.0},
                            loss={"boundary_band_px": 0.0}), None, 0.0),
@@ -183,6 +190,8 @@ def main() -> None:
                 shared[key] = Problem(c, labels, camera, truth.translation, params).pmap
             problem = Problem(None, target, camera, truth.translation, params,
                               prepared=shared[key])
+            if params.loss.em:  # an EM loss: its E step at the truth (is the truth its fixed point?)
+                problem.freeze(truth)
             for stage in (stages if name not in args.full_only.split(",") else [-1]):
                 at = problem.loss(truth, stage)
                 cells = []

@@ -91,6 +91,11 @@ class LossParams:
     # likelihood: hold the confusion matrix fixed through each refinement stage, estimated at
     # the stage's start (EM); false = re-estimated at every pose
     em: bool = False
+    # likelihood with em: the confusion learned at a stage's start is the frame's own histogram
+    # plus this many pseudo-pixels of the prior per rendered class (full-resolution pixels;
+    # a Dirichlet prior, so its weight falls as the class's evidence grows); 0 = shrunk by
+    # ``prior_weight`` as at every pose
+    em_prior_pixels: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -114,6 +119,9 @@ class LossParams:
         if not 0.0 <= self.confusion_weight <= 1.0:
             raise ValueError(f"loss.confusion_weight must be in [0, 1], got "
                              f"{self.confusion_weight}")
+        if not 0.0 <= self.em_prior_pixels <= 1e6:
+            raise ValueError(f"loss.em_prior_pixels must be in [0, 1e6], got "
+                             f"{self.em_prior_pixels}")
         if not 0.0 <= self.boundary_band_px <= 50.0:
             raise ValueError(f"loss.boundary_band_px must be in [0, 50], got "
                              f"{self.boundary_band_px}")
@@ -259,6 +267,31 @@ def likelihood_share(joint: np.ndarray, prior: np.ndarray, weight: float) -> flo
         cost = -np.sum(np.where(joint > 0, joint * np.log(np.where(joint > 0, conf, 1.0)), 0.0))
         h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
     return float(cost / n / h_t) if h_t > 0 else 0.0
+
+
+#: the learned confusion's smallest probability: a pair never seen at the stage's start (and
+#: not a usual confusion) costs log(C[t, t] / 1e-3), about 7, not an unbounded amount
+LEARNED_FLOOR = 1e-3
+
+
+def learned_costs(joint: np.ndarray, prior: np.ndarray, pseudo: float) -> np.ndarray:
+    """float64[N_CLASSES + 1, N_CLASSES]: the adaptive likelihood's cost of rendered class r
+    (last row: nothing rendered) where the labels say t, from the confusion the frame itself
+    shows at a pose (EM's E step): C[r] = (joint[r] + pseudo x prior[r]) / (n_r + pseudo), a
+    Dirichlet prior of ``pseudo`` pixels per rendered class, so the frame's evidence outweighs
+    it as it grows. The cost is the log-likelihood ratio of label t under r against under the
+    class that matches t (t itself; nothing rendered for sky), clipped at 0: a match costs 0,
+    a confusion the frame makes often costs little (facades as vegetation: C 0.4 against 0.9,
+    0.8), a swap or a pair the frame never shows about 7. On clean labels C is near-diagonal and
+    every mismatch costs alike (the paper's L2 with its boundary band, in shape); the fixed
+    shrinkage of :func:`shrunk_confusion` instead caps what agreement earns."""
+    joint = np.asarray(joint, float)
+    rows = joint.sum(axis=1, keepdims=True)
+    conf = (joint + pseudo * prior) / np.maximum(rows + pseudo, 1e-12)
+    logc = np.log(np.maximum(conf, LEARNED_FLOOR))
+    ref = logc[np.arange(N_CLASSES), np.arange(N_CLASSES)].copy()
+    ref[SKY] = logc[N_CLASSES, SKY]
+    return np.maximum(ref[None, :] - logc, 0.0)
 
 
 def shrunk_confusion(joint: np.ndarray, prior: np.ndarray, weight: float) -> np.ndarray:
@@ -440,6 +473,36 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft):
 
 
 @numba.njit(cache=True, nogil=True)
+def _learned_kernel(rendered, target, start, costs, dist, banded, uncovered):
+    """Sum of :func:`learned_costs` over the valid target pixels and their count; with
+    ``banded`` a rendered class's cost is weighted by its distance share in the labels
+    (``dist``, 255 = the band or farther), as the L2 loss's. Pixels are valid as for the L2
+    loss: a map-class pixel no point covers costs ``uncovered`` (0: masked, the paper), nothing
+    drawn over sky is a match."""
+    total = 0.0
+    n = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if r == INVALID:
+            if t != SKY:  # a map-class pixel no point covers: the L2 loss's rule
+                if uncovered > 0:
+                    n += 1
+                    total += uncovered
+                continue
+            r = SKY  # nothing drawn where the labels have sky: a match
+        n += 1
+        if r != t:
+            c = costs[r, t]
+            if banded and c > 0:
+                c *= dist[r, p] * (1.0 / 255.0)
+            total += c
+    return total, n
+
+
+@numba.njit(cache=True, nogil=True)
 def _likelihood(joint, prior, weight, h_target):
     """The kernel of :func:`likelihood_share` (``h_target`` precomputed); with ``weight`` 0 it
     is H(T | R) / H(T), the ``mi`` loss."""
@@ -478,6 +541,9 @@ class LabelLoss:
         self.prior = (confusion_prior(params.confusion_weight) if params.kind == "likelihood"
                       else None)
         self.frozen: np.ndarray | None = None  # -log C held fixed (freeze), or None
+        # the learned confusion's per-pixel costs (freeze with em_prior_pixels), or None
+        self.learned: np.ndarray | None = None
+        self.scale = scale
         self.banded = self.band_px > 0 and not self.mi
         self.soft = probabilities is not None
         self.costs: np.ndarray | None = None
@@ -518,12 +584,18 @@ class LabelLoss:
         flat = np.ascontiguousarray(rendered).ravel()
         joint = np.zeros((N_CLASSES + 1, N_CLASSES))
         _joint_kernel(flat, self.target, self.start, joint, self.probabilities, self.soft)
+        if self.params.em_prior_pixels > 0:
+            pseudo = self.params.em_prior_pixels / (self.scale * self.scale)
+            self.learned = learned_costs(joint, self.prior, pseudo)
+            if self.band_px > 0 and not self.soft and self.dist.shape[0] != N_CLASSES:
+                self.dist = class_distances(self.target.reshape(self.shape), self.band_px)
+            return
         conf = shrunk_confusion(joint, self.prior, self.params.prior_weight)
         self.frozen = -np.log(np.maximum(conf, 1e-4))
 
     def thaw(self) -> None:
         """Back to the confusion matrix re-estimated at every pose."""
-        self.frozen = None
+        self.frozen = self.learned = None
 
     def floor(self, rendered: np.ndarray) -> float:
         """The loss ``rendered`` would have if every pixel it covers drew its label's class: what
@@ -548,6 +620,14 @@ class LabelLoss:
             coverage = n_covered / n_scene if n_scene else 0.0
             if coverage < self.params.min_coverage or joint.sum() == 0:
                 return self.params.degenerate_loss, coverage
+            if self.learned is not None:
+                if self.soft:
+                    return float(np.sum(joint * self.learned) / joint.sum()
+                                 / self.h_target), coverage
+                total, n = _learned_kernel(flat, self.target, self.start, self.learned,
+                                           self.dist, self.band_px > 0,
+                                           self.params.uncovered_cost)
+                return float(total / n / self.h_target), coverage
             if self.frozen is not None:
                 n = joint.sum()
                 return float(np.sum(joint * self.frozen) / n / self.h_target), coverage

@@ -228,7 +228,7 @@ class Search:
         The loss returned is the last stage's."""
         stages = self.problem.stages
         last = last % len(stages)
-        em = self.problem.params.loss.em and hasattr(self.problem, "freeze")
+        em = self.problem.params.loss.em
         if restart_first:
             center, loss = self.restart(0, center, loss, run, label)
         for k in range(first, last + 1):
@@ -402,14 +402,21 @@ def _evidence(problem: Problem, search: Search, pose: Pose) -> Evidence | None:
         return None
     last = len(problem.stages) - 1
 
+    em = problem.params.loss.em
+
     def refine(part: Problem, start: np.ndarray) -> np.ndarray:
         alone = Search(part, search.counter)
         alone.box = search.box
+        if em:  # the part minimises what the last stage did: the loss held at its start
+            part.freeze(Pose.from_vector(start))
         vec, loss = alone.nelder_mead(last, start, 0, max_evaluations=qp.evidence_evaluations,
                                       simplex=qp.evidence_simplex)
         # the simplex never evaluates its centre: the result itself stays the part's answer
         # unless a vertex beat it
-        return vec if loss < alone.score(Pose.from_vector(start), last) else start
+        better = loss < alone.score(Pose.from_vector(start), last)
+        if em:
+            part.thaw()
+        return vec if better else start
 
     search.counter.begin_stage("uncertainty from independent evidence")
     return evidence_uncertainty(problem, pose, refine)
