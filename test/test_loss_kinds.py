@@ -107,6 +107,8 @@ def test_loss_parameters_are_checked():
         LossParams(kind="likelihood", prior_weight=-1.0)
     with pytest.raises(ValueError, match="confusion_weight"):
         replace(LossParams(), confusion_weight=2.0)
+    with pytest.raises(ValueError, match="em_prior_pixels"):
+        LossParams(em_prior_pixels=-1.0)
 
 
 def test_the_default_is_the_likelihood_and_the_paper_loss_file_selects_l2():
@@ -119,3 +121,105 @@ def test_the_default_is_the_likelihood_and_the_paper_loss_file_selects_l2():
     params = CalibrationParams.from_file(str(path))
     assert params.loss.kind == "l2" and params.loss.boundary_band_px == 4.0
     assert params.search == CalibrationParams().search  # nothing else changed
+
+
+def _learned_reference(rendered, target, costs, dist_band, uncovered=0.0):
+    """The learned EM loss in numpy: per pixel the learned cost, banded, L2's validity."""
+    from semcal_ros.engine.loss import class_distances
+
+    r = rendered.ravel().astype(int)
+    t = target.ravel().astype(int)
+    dist = class_distances(target, dist_band) if dist_band > 0 else None
+    total, n = 0.0, 0
+    for p in range(t.size):
+        if t[p] == INVALID:
+            continue
+        rp = r[p]
+        if rp == INVALID:
+            if t[p] != SKY:
+                if uncovered > 0:
+                    total, n = total + uncovered, n + 1
+                continue
+            rp = SKY
+        n += 1
+        if rp != t[p]:
+            c = costs[rp, t[p]]
+            total += c * (dist[rp, p] / 255.0 if dist is not None else 1.0)
+    return total, n
+
+
+def test_learned_costs_are_near_uniform_on_clean_labels_and_cheap_for_a_real_confusion():
+    """The E step learns the frame's own confusion: on clean labels every mismatch costs about
+    the same (and a match 0); a confusion the frame shows consistently (the map's facade as
+    vegetation, 40 % of the building rows) costs little while a swap stays dear."""
+    from semcal_ros.engine.loss import learned_costs
+
+    prior = confusion_prior(0.3)
+    clean = np.zeros((20, 19))
+    for c, n in ((ROAD, 50000), (BUILDING, 30000), (VEG, 20000), (CAR, 5000)):
+        clean[c, c] = n
+    clean[ROAD, BUILDING] = clean[BUILDING, ROAD] = 50  # a few boundary pixels
+    clean[19, SKY] = 40000
+    costs = learned_costs(clean, prior, 100.0)
+    assert np.all(np.diag(costs[:19, :19]) == 0) and costs[19, SKY] == 0
+    # a usual confusion (building/vegetation in the prior) the frame does not show costs about
+    # as much as any other mismatch: the prior does not cap what agreement earns
+    assert costs[BUILDING, VEG] > 4.5 and costs[ROAD, CAR] > 4.5
+    real = clean.copy()
+    real[BUILDING, BUILDING], real[BUILDING, VEG] = 18000, 12000
+    costs = learned_costs(real, prior, 100.0)
+    assert costs[BUILDING, VEG] < 1.5  # log(C[veg, veg] / C[building, veg]) ~ log(1 / 0.4)
+    assert costs[ROAD, BUILDING] > 4.0 and costs[BUILDING, ROAD] > 4.0  # swaps stay dear
+
+
+def test_the_learned_prior_weighs_less_as_the_evidence_grows():
+    """A Dirichlet prior of fixed pixels: the same shares from ten times the pixels move C
+    towards the frame's own (a usual confusion the frame never shows grows dearer)."""
+    from semcal_ros.engine.loss import learned_costs
+
+    prior = confusion_prior(0.3)
+    small = np.zeros((20, 19))
+    small[BUILDING, BUILDING], small[VEG, VEG], small[19, SKY] = 300, 300, 300
+    few = learned_costs(small, prior, 100.0)[BUILDING, VEG]
+    many = learned_costs(small * 10, prior, 100.0)[BUILDING, VEG]
+    assert many > few + 1.0
+
+
+def test_the_learned_em_loss_is_zero_at_a_clean_truth_grows_with_the_error_and_matches_numpy():
+    """Held at the truth of clean labels, the learned loss is 0 there and grows with a pitch
+    error (smoothly near the truth: the boundary band), and its kernel equals the numpy
+    reference; thawed, it is the likelihood re-estimated at each pose again."""
+    from semcal_ros.engine.loss import learned_costs
+
+    t = _street()
+    truth = _render(t)
+    params = LossParams(kind="likelihood", em=True, em_prior_pixels=100.0)
+    loss = LabelLoss(t, params)
+    free = loss(_render(t, 2))
+    loss.freeze(truth)
+    assert loss(truth) == 0.0
+    values = [loss(_render(t, k)) for k in (1, 2, 3, 6)]
+    assert all(b > a for a, b in zip([0.0] + values, values)), values
+    assert values[0] < 0.5 * values[1]  # within the band a 1-row error costs little
+    joint = np.zeros((20, 19))
+    flat, tt = truth.ravel(), t.ravel()
+    for r, c in zip(flat, tt):
+        joint[19 if r == INVALID else r, c] += 1
+    costs = learned_costs(joint, confusion_prior(params.confusion_weight), 100.0)
+    off = _render(t, 3)
+    total, n = _learned_reference(off, t, costs, params.boundary_band_px)
+    assert loss(off) == pytest.approx(total / n / loss.cost.h_target, rel=1e-9)
+    loss.thaw()
+    assert loss(_render(t, 2)) == pytest.approx(free)
+
+
+def test_held_at_a_consistent_confusion_the_truth_still_wins():
+    """Held where the map's facade is labelled vegetation, the truth (with that confusion)
+    beats views a few rows off, which put other classes on the facade."""
+    t = _street()
+    confused = _render(t)
+    confused[45:55, 60:] = VEG
+    loss = LabelLoss(t, LossParams(kind="likelihood", em=True, em_prior_pixels=100.0))
+    loss.freeze(confused)
+    for rows in (-4, -2, 2, 4):
+        assert loss(confused) < loss(np.roll(confused, rows, axis=0)), rows

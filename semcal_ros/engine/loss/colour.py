@@ -1,0 +1,200 @@
+"""The paper's loss: the colour distance between the rendered and the labelled class.
+
+Colours are a fixed function of labels, so the per-pixel colour distance is a lookup in a
+class-pair table: no float colour images are ever built. The loss is the mean over valid pixels
+(beta * sum / numel in the paper's notation), which gives the optimiser's tolerances a fixed meaning.
+
+Validity, as in the paper's CARLA set-up: the target must carry a usable class; a pixel where no map
+point landed is rendered as sky, which counts where the target is sky and is masked where it is not
+(such holes come from map sparsity, not from a wrong pose). ``l2`` (the paper's squared
+distance) and ``huber`` share this module; ``balanced`` (balanced.py) uses its kernel with a
+table of its own. With the segmenter's class probabilities as the target a pixel costs the
+expected distance under its softmax (probabilities.py).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numba
+import numpy as np
+
+from semcal_ros.engine.labels import INVALID, SKY, palette_array
+from semcal_ros.engine.loss.params import N_CLASSES, LossParams
+
+
+def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
+    """float64[256, 256]: loss between the colours of two aligned classes (colours in [0, 1]);
+    ``mi`` has no table (the L2 one is returned, used only by the reference's band)."""
+    colours = palette_array().astype(np.float64) / 255.0
+    diff = colours[:, None, :] - colours[None, :, :]
+    if kind in ("l2", "mi", "likelihood"):
+        return np.sum(diff * diff, axis=2)
+    if kind == "balanced":  # per label class weights: :func:`balanced_table`
+        return (np.arange(256)[:, None] != np.arange(256)[None, :]).astype(np.float64)
+    a = np.abs(diff)
+    huber = np.where(a <= delta, 0.5 * a * a, delta * (a - 0.5 * delta))
+    return np.sum(huber, axis=2)
+
+
+def class_distances(target: np.ndarray, band_px: float) -> np.ndarray:
+    """uint8[N_CLASSES, H*W]: per class, the distance from each pixel to the nearest target pixel
+    of that class, as a share of ``band_px`` (255 = the band or farther). One OpenCV distance
+    transform per class present; absent classes are 255 everywhere."""
+    h, w = target.shape
+    out = np.full((N_CLASSES, h * w), 255, np.uint8)
+    for c in np.unique(target):
+        if c >= N_CLASSES:
+            continue
+        dist = cv2.distanceTransform((target != c).astype(np.uint8), cv2.DIST_L2, 5)
+        out[c] = np.minimum(dist.ravel() * (255.0 / band_px), 255.0).astype(np.uint8)
+    return out
+
+
+def colour_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
+                   params: LossParams, band_px: float | None = None,
+                   probabilities: np.ndarray | None = None) -> tuple[float, float]:
+    """(loss, coverage) in numpy; ``target`` holds aligned classes (INVALID = ignore).
+    ``band_px``: the boundary band at this image's resolution (default ``params``');
+    ``probabilities``: (H, W, N_CLASSES) aligned class probabilities (the expected cost)."""
+    band = params.boundary_band_px if band_px is None else band_px
+    if band > 0:
+        table_px = _banded(rendered, target, table, band)
+    top = int(round(params.crop_top * target.shape[0]))
+    r = rendered[top:].ravel()
+    t = target[top:].ravel()
+    empty = r == INVALID
+    valid = (t != INVALID) & (~empty | (t == SKY))
+    r_eff = np.where(empty, SKY, r)
+    scene = (t != INVALID) & (t != SKY)
+    n_scene = int(scene.sum())
+    uncovered = int((scene & empty).sum())
+    coverage = float(n_scene - uncovered) / n_scene if n_scene else 0.0
+    n_valid = int(valid.sum())
+    if probabilities is not None:
+        from semcal_ros.engine.loss.probabilities import COST_UNIT, expected_costs
+
+        expected = expected_costs(probabilities, table, target, band)[:, top * target.shape[1]:]
+        total = float(expected[r_eff[valid], np.nonzero(valid)[0]].sum()) * COST_UNIT
+    elif band > 0:
+        total = float(table_px[top * target.shape[1]:][valid].sum())
+    else:
+        total = float(table[r_eff[valid], t[valid]].sum())
+    if params.uncovered_cost > 0:
+        n_valid += uncovered
+        total += params.uncovered_cost * uncovered
+    if n_valid == 0 or coverage < params.min_coverage:
+        return params.degenerate_loss, coverage
+    return total / n_valid, coverage
+
+
+def _banded(rendered: np.ndarray, target: np.ndarray, table: np.ndarray, band: float
+            ) -> np.ndarray:
+    """Per-pixel cost with the boundary band (numpy; the reference for the kernel)."""
+    dist = class_distances(target, band)
+    r = rendered.ravel().astype(np.int64)
+    t = target.ravel().astype(np.int64)
+    r_eff = np.where(r == INVALID, SKY, r)
+    cost = np.zeros(r.shape, np.float64)
+    ok = t != INVALID
+    cost[ok] = table[r_eff[ok], t[ok]]
+    near = ok & (r_eff < N_CLASSES)
+    weight = np.ones(r.shape)
+    weight[near] = dist[r_eff[near], np.nonzero(near)[0]] / 255.0
+    return cost * weight
+
+
+@numba.njit(cache=True, nogil=True)
+def _loss_kernel(rendered, target, table, start, dist, banded):
+    """Sums over the valid pixels; with ``banded`` a mismatch is weighted by ``dist`` (the
+    rendered class's distance in the target, 255 = the band or farther)."""
+    total = 0.0
+    n_valid = 0
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r == INVALID:
+                continue
+            n_covered += 1
+        elif r == INVALID:
+            r = SKY
+        if banded:
+            if r != t:
+                total += table[r, t] * dist[r, p] * (1.0 / 255.0)
+        else:
+            total += table[r, t]
+        n_valid += 1
+    return total, n_valid, n_scene, n_covered
+
+
+@numba.njit(cache=True, nogil=True)
+def _cost_kernel(rendered, target, start, costs):
+    """Sums of precomputed per-pixel costs (``costs[rendered class, pixel]``, uint16)."""
+    total = 0
+    n_valid = 0
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r == INVALID:
+                continue
+            n_covered += 1
+        elif r == INVALID:
+            r = SKY
+        total += costs[r, p]
+        n_valid += 1
+    return total, n_valid, n_scene, n_covered
+
+
+class ColourCost:
+    """The colour-distance loss of one target (``l2``, ``huber``, ``balanced``): a class-pair
+    table, the boundary band's per-class distances, or the expected costs of a soft target."""
+
+    def __init__(self, target: np.ndarray, shape: tuple[int, int], start: int,
+                 params: LossParams, scale: int, probabilities: np.ndarray | None,
+                 table: np.ndarray) -> None:
+        from semcal_ros.engine.loss.probabilities import COST_UNIT, expected_costs
+
+        self.target, self.start, self.params, self.table = target, start, params, table
+        band = params.boundary_band_px / scale
+        self.banded = band > 0
+        self.unit = COST_UNIT
+        self.costs: np.ndarray | None = None
+        self.dist = np.zeros((1, 1), np.uint8)
+        if probabilities is not None:
+            self.costs = expected_costs(probabilities, table, target.reshape(shape),
+                                        band if self.banded else 0.0)
+        elif self.banded:
+            self.dist = class_distances(target.reshape(shape), band)
+
+    def evaluate(self, flat: np.ndarray) -> tuple[float, float]:
+        if self.costs is not None:
+            total, n_valid, n_scene, n_covered = _cost_kernel(flat, self.target, self.start,
+                                                              self.costs)
+            total = total * self.unit
+        else:
+            total, n_valid, n_scene, n_covered = _loss_kernel(
+                flat, self.target, self.table, self.start, self.dist, self.banded)
+        coverage = n_covered / n_scene if n_scene else 0.0
+        if self.params.uncovered_cost > 0:
+            n_valid += n_scene - n_covered
+            total += self.params.uncovered_cost * (n_scene - n_covered)
+        if n_valid == 0 or coverage < self.params.min_coverage:
+            return self.params.degenerate_loss, coverage
+        return total / n_valid, coverage
+
+    def freeze(self, flat: np.ndarray) -> None:
+        """Nothing to hold: the colour distances are fixed."""
+
+    def thaw(self) -> None:
+        """Nothing held."""

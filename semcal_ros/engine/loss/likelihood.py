@@ -1,0 +1,317 @@
+"""The labels' likelihood under the confusion between map and label classes (``kind:
+likelihood``, the default) and its prior-free form, mutual information (``kind: mi``).
+
+Real segmenters err in whole regions of a consistently confused class (hedge = terrain, shadowed
+hedge = building) rather than in noise; a colour distance charges such a region in full at the
+truth, and a pose that hides it wins.
+
+- ``mi``: the conditional entropy of the label given the rendered class, H(T | R) / H(T) = 1 -
+  MI(R; T) / H(T), from the joint histogram of rendered and labelled classes over every valid
+  target pixel ("nothing rendered" is a rendered class of its own, so looking away is not free).
+  A consistent confusion still carries information, so it still aligns; but MI cannot tell which
+  class should match which (after swapping two classes the histogram is as informative: on a
+  real frame started at the truth, ``mi`` moved 9 m to where the map's road lay on the image's
+  buildings).
+- ``likelihood``: -mean log C[rendered, label] / H(T), with C the joint histogram's rows (the
+  confusion matrix at this pose) shrunk towards a prior that puts weight on the diagonal and on
+  the confusions real segmenters and point labellers make (``CONFUSIONS``): a swap costs, a
+  consistent confusion (facades the point labeller calls vegetation) still aligns.
+- ``em: true`` (Dempster, Laird & Rubin 1977): the refinement stages hold the confusion fixed,
+  estimated at each stage's start (the E step), and minimise the labels' cost under it (the M
+  step). Re-estimated at every pose, C absorbs part of a misalignment (a flat basin) and its
+  fixed shrinkage caps what agreement earns, which moves the minimum off the truth on clean labels.
+  With ``em_prior_pixels`` the held confusion is learned from the frame (a Dirichlet prior of that
+  many pixels per class, so the frame's evidence outweighs it as it grows) and a pixel costs the
+  log-likelihood ratio of its label under the rendered class against under the matching one
+  (:func:`learned_costs`), with the colour loss's boundary band: clean labels give a
+  near-diagonal C and L2's sharpness, a real confusion stays cheap, swaps stay dear.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from semcal_ros.engine.labels import INVALID, SKY
+from semcal_ros.engine.loss.colour import class_distances
+from semcal_ros.engine.loss.params import N_CLASSES, LossParams
+
+#: Pairs of classes real segmenters and point labellers confuse with each other (measured on the
+#: shared KITTI and PJLab frames, docs/real-data.md): the likelihood's prior gives them weight.
+CONFUSIONS = (("terrain", "vegetation"), ("building", "vegetation"), ("sky", "building"),
+              ("sidewalk", "road"), ("wall", "building"), ("fence", "building"),
+              ("fence", "vegetation"), ("pole", "traffic sign"), ("pole", "traffic light"),
+              ("terrain", "sidewalk"), ("car", "truck"))
+
+
+def likelihood_reference(rendered: np.ndarray, target: np.ndarray, params: LossParams,
+                  probabilities: np.ndarray | None) -> tuple[float, float]:
+    """H(T | R) / H(T) from the joint histogram, in numpy (the reference for the kernel)."""
+    top = int(round(params.crop_top * target.shape[0]))
+    r = rendered[top:].ravel().astype(np.int64)
+    t = target[top:].ravel().astype(np.int64)
+    ok = t != INVALID
+    scene = ok & (t != SKY)
+    n_scene = int(scene.sum())
+    coverage = float((scene & (r != INVALID)).sum()) / n_scene if n_scene else 0.0
+    rows = np.where(r == INVALID, N_CLASSES, r)[ok]
+    joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+    if probabilities is None:
+        np.add.at(joint, (rows, t[ok]), 1.0)
+    else:
+        q = probabilities[top:].reshape(-1, N_CLASSES)[ok]
+        np.add.at(joint, rows, q)
+    if joint.sum() == 0 or coverage < params.min_coverage:
+        return params.degenerate_loss, coverage
+    if params.kind == "likelihood":
+        return likelihood_share(joint, confusion_prior(params.confusion_weight),
+                                params.prior_weight), coverage
+    return conditional_entropy_share(joint), coverage
+
+
+def confusion_prior(confusion_weight: float) -> np.ndarray:
+    """float64[N_CLASSES + 1, N_CLASSES]: per rendered class (last row: nothing rendered), the
+    prior distribution of the label there: the class itself (1), the classes it is usually
+    confused with (``confusion_weight``); nothing rendered is sky. Rows sum to 1."""
+    from semcal_ros.engine.labels import CITYSCAPES_ID
+
+    prior = np.zeros((N_CLASSES + 1, N_CLASSES))
+    prior[np.arange(N_CLASSES), np.arange(N_CLASSES)] = 1.0
+    for a, b in CONFUSIONS:
+        i, j = CITYSCAPES_ID[a], CITYSCAPES_ID[b]
+        prior[i, j] = prior[j, i] = confusion_weight
+    prior[N_CLASSES, SKY] = 1.0
+    return prior / prior.sum(axis=1, keepdims=True)
+
+
+def likelihood_share(joint: np.ndarray, prior: np.ndarray, weight: float) -> float:
+    """-mean log C[rendered, label] / H(T), with C the joint histogram's rows (the confusion
+    matrix at this pose) shrunk towards ``prior``: C = (row share + weight x prior) / (1 +
+    weight). ``weight`` 0 gives H(T | R) / H(T) (mutual information); with a weight, a class drawn
+    where the labels have another costs what the prior says of that pair, so a pose that maps
+    road onto building no longer scores as well as the truth (mutual information does not see
+    which class matches which)."""
+    joint = np.asarray(joint, float)
+    n = joint.sum()
+    cols = joint.sum(axis=0)
+    conf = shrunk_confusion(joint, prior, weight)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cost = -np.sum(np.where(joint > 0, joint * np.log(np.where(joint > 0, conf, 1.0)), 0.0))
+        h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
+    return float(cost / n / h_t) if h_t > 0 else 0.0
+
+
+#: the learned confusion's smallest probability: a pair never seen at the stage's start (and
+#: not a usual confusion) costs log(C[t, t] / 1e-3), about 7, not an unbounded amount
+LEARNED_FLOOR = 1e-3
+
+
+def learned_costs(joint: np.ndarray, prior: np.ndarray, pseudo: float) -> np.ndarray:
+    """float64[N_CLASSES + 1, N_CLASSES]: the adaptive likelihood's cost of rendered class r
+    (last row: nothing rendered) where the labels say t, from the confusion the frame itself
+    shows at a pose (EM's E step): C[r] = (joint[r] + pseudo x prior[r]) / (n_r + pseudo), a
+    Dirichlet prior of ``pseudo`` pixels per rendered class, so the frame's evidence outweighs
+    it as it grows. The cost is the log-likelihood ratio of label t under r against under the
+    class that matches t (t itself; nothing rendered for sky), clipped at 0: a match costs 0,
+    a confusion the frame makes often costs little (facades as vegetation: C 0.4 against 0.9,
+    0.8), a swap or a pair the frame never shows about 7. On clean labels C is near-diagonal and
+    every mismatch costs alike (the paper's L2 with its boundary band, in shape); the fixed
+    shrinkage of :func:`shrunk_confusion` instead caps what agreement earns."""
+    joint = np.asarray(joint, float)
+    rows = joint.sum(axis=1, keepdims=True)
+    conf = (joint + pseudo * prior) / np.maximum(rows + pseudo, 1e-12)
+    logc = np.log(np.maximum(conf, LEARNED_FLOOR))
+    ref = logc[np.arange(N_CLASSES), np.arange(N_CLASSES)].copy()
+    ref[SKY] = logc[N_CLASSES, SKY]
+    costs = np.maximum(ref[None, :] - logc, 0.0)
+    costs[np.arange(N_CLASSES), np.arange(N_CLASSES)] = 0.0  # a match (sky drawn is one too)
+    return costs
+
+
+def shrunk_confusion(joint: np.ndarray, prior: np.ndarray, weight: float) -> np.ndarray:
+    """C = (row share of ``joint`` + weight x prior) / (1 + weight): the confusion matrix at a
+    pose shrunk towards the prior; a row nothing was drawn in is the prior's."""
+    rows = joint.sum(axis=1, keepdims=True)
+    share = joint / np.where(rows > 0, rows, 1.0)
+    return np.where(rows > 0, (share + weight * prior) / (1.0 + weight), prior)
+
+
+def conditional_entropy_share(joint: np.ndarray) -> float:
+    """H(T | R) / H(T) of a joint histogram (rows R, columns T): 0 when the rendered class
+    decides the label, 1 when it says nothing about it (1 - normalised mutual information)."""
+    joint = np.asarray(joint, float)
+    n = joint.sum()
+    rows = joint.sum(axis=1, keepdims=True)
+    cols = joint.sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h_cond = -np.sum(np.where(joint > 0, joint * np.log(joint / rows), 0.0)) / n
+        h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
+    return float(h_cond / h_t) if h_t > 0 else 0.0
+
+
+#: the ``mi`` loss is the likelihood with no prior
+_NO_PRIOR = np.zeros((N_CLASSES + 1, N_CLASSES))
+
+
+@numba.njit(cache=True, nogil=True)
+def _joint_kernel(rendered, target, start, joint, probabilities, soft):
+    """The joint histogram of rendered (row N_CLASSES = nothing rendered) and labelled classes
+    over the valid target pixels, soft (``probabilities[p]``) or by the target class."""
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r != INVALID:
+                n_covered += 1
+        row = N_CLASSES if r == INVALID else r
+        if soft:
+            for k in range(N_CLASSES):
+                joint[row, k] += probabilities[p, k]
+        else:
+            joint[row, t] += 1.0
+    return n_scene, n_covered
+
+
+@numba.njit(cache=True, nogil=True)
+def _learned_kernel(rendered, target, start, costs, dist, banded, uncovered):
+    """Sum of :func:`learned_costs` over the valid target pixels, their count, the target's
+    map-class pixels and those a point covers; with ``banded`` a rendered class's cost is
+    weighted by its distance share in the labels (``dist``, 255 = the band or farther), as the
+    colour loss's. Pixels are valid as for the colour loss: a map-class pixel no point covers
+    costs ``uncovered`` (0: masked, the paper), nothing drawn over sky is a match."""
+    total = 0.0
+    n = 0
+    n_scene = 0
+    n_covered = 0
+    for p in range(start, target.shape[0]):
+        t = target[p]
+        if t == INVALID:
+            continue
+        r = rendered[p]
+        if t != SKY:
+            n_scene += 1
+            if r == INVALID:
+                if uncovered > 0:
+                    n += 1
+                    total += uncovered
+                continue
+            n_covered += 1
+        elif r == INVALID:
+            r = SKY
+        n += 1
+        if r != t:
+            c = costs[r, t]
+            if banded and c > 0:
+                c *= dist[r, p] * (1.0 / 255.0)
+            total += c
+    return total, n, n_scene, n_covered
+
+
+@numba.njit(cache=True, nogil=True)
+def _likelihood(joint, prior, weight, h_target):
+    """The kernel of :func:`likelihood_share` (``h_target`` precomputed); with ``weight`` 0 it
+    is H(T | R) / H(T), the ``mi`` loss."""
+    n = 0.0
+    h = 0.0
+    for r in range(joint.shape[0]):
+        nr = 0.0
+        for t in range(joint.shape[1]):
+            nr += joint[r, t]
+        if nr <= 0:
+            continue
+        n += nr
+        for t in range(joint.shape[1]):
+            c = joint[r, t]
+            if c > 0:
+                h -= c * np.log((c / nr + weight * prior[r, t]) / (1.0 + weight))
+    return h / n / h_target if n > 0 and h_target > 0 else 0.0
+
+
+class LikelihoodCost:
+    """The likelihood (or ``mi``) of one target: the joint histogram at each pose, or the
+    confusion held by :meth:`freeze` (``em``)."""
+
+    table = None  # no class-pair table: the costs come from the histogram
+
+    def __init__(self, target: np.ndarray, shape: tuple[int, int], start: int,
+                 params: LossParams, scale: int, probabilities: np.ndarray | None) -> None:
+        self.target, self.shape, self.start, self.params = target, shape, start, params
+        self.scale = scale
+        self.band_px = params.boundary_band_px / scale
+        self.prior = confusion_prior(params.confusion_weight) if params.kind == "likelihood" \
+            else None
+        self.frozen: np.ndarray | None = None  # -log C held fixed (freeze), or None
+        # the learned confusion's per-pixel costs (freeze with em_prior_pixels), or None
+        self.learned: np.ndarray | None = None
+        self.dist = np.zeros((1, 1), np.uint8)  # the band's class distances, at first need
+        self.soft = probabilities is not None
+        self.probabilities = (np.ascontiguousarray(probabilities.reshape(-1, N_CLASSES),
+                                                   dtype=np.float32)
+                              if probabilities is not None else np.zeros((1, N_CLASSES),
+                                                                         np.float32))
+        # H(T) over the (fixed) valid pixels: the normaliser of H(T | R)
+        joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+        _joint_kernel(np.full(target.shape, INVALID, np.uint8), target, start, joint,
+                      self.probabilities, self.soft)
+        cols = joint.sum(axis=0)
+        n = cols.sum()
+        self.h_target = float(-np.sum(np.where(cols > 0, cols * np.log(
+            np.where(cols > 0, cols, 1.0) / max(n, 1.0)), 0.0)) / max(n, 1.0))
+
+    def _joint(self, flat: np.ndarray) -> tuple[np.ndarray, int, int]:
+        joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+        n_scene, n_covered = _joint_kernel(flat, self.target, self.start, joint,
+                                           self.probabilities, self.soft)
+        return joint, n_scene, n_covered
+
+    def freeze(self, flat: np.ndarray) -> None:
+        """The E step: the confusion matrix at ``flat`` held fixed until :meth:`thaw`, learned
+        from the frame (``em_prior_pixels`` > 0, :func:`learned_costs`) or shrunk towards the
+        prior (then the loss is the mean of -log C[rendered, label] under it). With C
+        re-estimated at every pose the loss absorbs part of a misalignment into C (a flat
+        basin: 3-4 % per 25 cm on real frames); held fixed, a misplaced boundary costs what
+        the labels at the estimate said it should."""
+        if self.prior is None:
+            return
+        joint, _, _ = self._joint(flat)
+        if self.params.em_prior_pixels > 0:
+            pseudo = self.params.em_prior_pixels / (self.scale * self.scale)
+            self.learned = learned_costs(joint, self.prior, pseudo)
+            if self.band_px > 0 and not self.soft and self.dist.shape[0] != N_CLASSES:
+                self.dist = class_distances(self.target.reshape(self.shape), self.band_px)
+            return
+        conf = shrunk_confusion(joint, self.prior, self.params.prior_weight)
+        self.frozen = -np.log(np.maximum(conf, 1e-4))
+
+    def thaw(self) -> None:
+        """Back to the confusion matrix re-estimated at every pose."""
+        self.frozen = self.learned = None
+
+    def evaluate(self, flat: np.ndarray) -> tuple[float, float]:
+        if self.learned is not None and not self.soft:
+            total, n, n_scene, n_covered = _learned_kernel(
+                flat, self.target, self.start, self.learned, self.dist, self.band_px > 0,
+                self.params.uncovered_cost)
+            joint = None
+        else:
+            joint, n_scene, n_covered = self._joint(flat)
+            n = joint.sum()
+        coverage = n_covered / n_scene if n_scene else 0.0
+        if coverage < self.params.min_coverage or n == 0:
+            return self.params.degenerate_loss, coverage
+        if self.learned is not None:
+            if joint is not None:  # a soft target: the expected cost, no band
+                return float(np.sum(joint * self.learned) / n / self.h_target), coverage
+            return float(total / n / self.h_target), coverage
+        if self.frozen is not None:
+            return float(np.sum(joint * self.frozen) / n / self.h_target), coverage
+        if self.prior is not None:
+            return float(_likelihood(joint, self.prior, self.params.prior_weight,
+                                     self.h_target)), coverage
+        return float(_likelihood(joint, _NO_PRIOR, 0.0, self.h_target)), coverage
+
