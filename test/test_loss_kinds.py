@@ -223,3 +223,22 @@ def test_held_at_a_consistent_confusion_the_truth_still_wins():
     loss.freeze(confused)
     for rows in (-4, -2, 2, 4):
         assert loss(confused) < loss(np.roll(confused, rows, axis=0)), rows
+
+
+def test_the_learned_em_loss_of_a_one_hot_softmax_equals_the_argmax_one():
+    """A soft target whose softmax is certain costs what its argmax labels cost (band and
+    masking alike); an unsure pixel costs its expected cost."""
+    t = _street()
+    q = np.zeros(t.shape + (19,), np.float32)
+    q[np.arange(t.shape[0])[:, None], np.arange(t.shape[1])[None, :], t] = 1.0
+    params = LossParams(kind="likelihood", em=True, em_prior_pixels=100.0)
+    hard, soft = LabelLoss(t, params), LabelLoss(t, params, probabilities=q)
+    truth = _render(t)
+    hard.freeze(truth)
+    soft.freeze(truth)
+    off = _render(t, 2)
+    assert soft(off) == pytest.approx(hard(off), rel=1e-9) and hard(off) > 0
+    q[50:52, :, ROAD], q[50:52, :, VEG] = 0.5, 0.5  # unsure rows at the vegetation's lower edge
+    unsure = LabelLoss(t, params, probabilities=q)
+    unsure.freeze(truth)
+    assert unsure(off) != pytest.approx(soft(off), rel=1e-6)

@@ -104,10 +104,13 @@ def _banded(rendered: np.ndarray, target: np.ndarray, table: np.ndarray, band: f
 
 
 @numba.njit(cache=True, nogil=True)
-def _loss_kernel(rendered, target, table, start, dist, banded):
-    """Sums over the valid pixels; with ``banded`` a mismatch is weighted by ``dist`` (the
-    rendered class's distance in the target, 255 = the band or farther)."""
+def _loss_kernel(rendered, target, table, start, dist, banded, costs, soft, unit):
+    """Sums over the valid pixels: the table's cost of each pixel, with ``banded`` a mismatch
+    weighted by ``dist`` (the rendered class's distance in the target, 255 = the band or
+    farther); with ``soft`` the precomputed expected costs instead (``costs[rendered class,
+    pixel]``, uint16 in ``unit``s, summed as integers)."""
     total = 0.0
+    counts = 0
     n_valid = 0
     n_scene = 0
     n_covered = 0
@@ -123,37 +126,15 @@ def _loss_kernel(rendered, target, table, start, dist, banded):
             n_covered += 1
         elif r == INVALID:
             r = SKY
-        if banded:
+        if soft:
+            counts += costs[r, p]
+        elif banded:
             if r != t:
                 total += table[r, t] * dist[r, p] * (1.0 / 255.0)
         else:
             total += table[r, t]
         n_valid += 1
-    return total, n_valid, n_scene, n_covered
-
-
-@numba.njit(cache=True, nogil=True)
-def _cost_kernel(rendered, target, start, costs):
-    """Sums of precomputed per-pixel costs (``costs[rendered class, pixel]``, uint16)."""
-    total = 0
-    n_valid = 0
-    n_scene = 0
-    n_covered = 0
-    for p in range(start, target.shape[0]):
-        t = target[p]
-        if t == INVALID:
-            continue
-        r = rendered[p]
-        if t != SKY:
-            n_scene += 1
-            if r == INVALID:
-                continue
-            n_covered += 1
-        elif r == INVALID:
-            r = SKY
-        total += costs[r, p]
-        n_valid += 1
-    return total, n_valid, n_scene, n_covered
+    return total + counts * unit, n_valid, n_scene, n_covered
 
 
 class ColourCost:
@@ -169,7 +150,8 @@ class ColourCost:
         band = params.boundary_band_px / scale
         self.banded = band > 0
         self.unit = COST_UNIT
-        self.costs: np.ndarray | None = None
+        self.soft = probabilities is not None
+        self.costs = np.zeros((1, 1), np.uint16)  # the expected costs of a soft target
         self.dist = np.zeros((1, 1), np.uint8)
         if probabilities is not None:
             self.costs = expected_costs(probabilities, table, target.reshape(shape),
@@ -178,13 +160,9 @@ class ColourCost:
             self.dist = class_distances(target.reshape(shape), band)
 
     def evaluate(self, flat: np.ndarray) -> tuple[float, float]:
-        if self.costs is not None:
-            total, n_valid, n_scene, n_covered = _cost_kernel(flat, self.target, self.start,
-                                                              self.costs)
-            total = total * self.unit
-        else:
-            total, n_valid, n_scene, n_covered = _loss_kernel(
-                flat, self.target, self.table, self.start, self.dist, self.banded)
+        total, n_valid, n_scene, n_covered = _loss_kernel(
+            flat, self.target, self.table, self.start, self.dist, self.banded, self.costs,
+            self.soft, self.unit)
         coverage = n_covered / n_scene if n_scene else 0.0
         if self.params.uncovered_cost > 0:
             n_valid += n_scene - n_covered

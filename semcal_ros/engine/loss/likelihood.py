@@ -178,12 +178,14 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft):
 
 
 @numba.njit(cache=True, nogil=True)
-def _learned_kernel(rendered, target, start, costs, dist, banded, uncovered):
+def _learned_kernel(rendered, target, start, costs, dist, banded, uncovered, probabilities,
+                    soft):
     """Sum of :func:`learned_costs` over the valid target pixels, their count, the target's
-    map-class pixels and those a point covers; with ``banded`` a rendered class's cost is
-    weighted by its distance share in the labels (``dist``, 255 = the band or farther), as the
-    colour loss's. Pixels are valid as for the colour loss: a map-class pixel no point covers
-    costs ``uncovered`` (0: masked, the paper), nothing drawn over sky is a match."""
+    map-class pixels and those a point covers. Pixels are valid as for the colour loss: a
+    map-class pixel no point covers costs ``uncovered`` (0: masked, the paper), nothing drawn
+    over sky is a match. A soft target (``probabilities``) costs its expected cost under the
+    segmenter's softmax. With ``banded`` a rendered class's cost is weighted by its distance
+    share in the labels (``dist``, 255 = the band or farther), as the colour loss's."""
     total = 0.0
     n = 0
     n_scene = 0
@@ -202,13 +204,19 @@ def _learned_kernel(rendered, target, start, costs, dist, banded, uncovered):
                 continue
             n_covered += 1
         elif r == INVALID:
-            r = SKY
+            r = N_CLASSES  # nothing drawn where the labels have sky: a match
         n += 1
-        if r != t:
+        if soft:
+            c = 0.0
+            for k in range(costs.shape[1]):
+                c += probabilities[p, k] * costs[r, k]
+        elif r != t and r < N_CLASSES:
             c = costs[r, t]
-            if banded and c > 0:
-                c *= dist[r, p] * (1.0 / 255.0)
-            total += c
+        else:
+            continue
+        if banded and c > 0 and r < N_CLASSES:
+            c *= dist[r, p] * (1.0 / 255.0)
+        total += c
     return total, n, n_scene, n_covered
 
 
@@ -282,7 +290,7 @@ class LikelihoodCost:
         if self.params.em_prior_pixels > 0:
             pseudo = self.params.em_prior_pixels / (self.scale * self.scale)
             self.learned = learned_costs(joint, self.prior, pseudo)
-            if self.band_px > 0 and not self.soft and self.dist.shape[0] != N_CLASSES:
+            if self.band_px > 0 and self.dist.shape[0] != N_CLASSES:
                 self.dist = class_distances(self.target.reshape(self.shape), self.band_px)
             return
         conf = shrunk_confusion(joint, self.prior, self.params.prior_weight)
@@ -293,25 +301,22 @@ class LikelihoodCost:
         self.frozen = self.learned = None
 
     def evaluate(self, flat: np.ndarray) -> tuple[float, float]:
-        if self.learned is not None and not self.soft:
+        if self.learned is not None:
             total, n, n_scene, n_covered = _learned_kernel(
                 flat, self.target, self.start, self.learned, self.dist, self.band_px > 0,
-                self.params.uncovered_cost)
-            joint = None
-        else:
-            joint, n_scene, n_covered = self._joint(flat)
-            n = joint.sum()
+                self.params.uncovered_cost, self.probabilities, self.soft)
+            coverage = n_covered / n_scene if n_scene else 0.0
+            if coverage < self.params.min_coverage or n == 0:
+                return self.params.degenerate_loss, coverage
+            return float(total / n / self.h_target), coverage
+        joint, n_scene, n_covered = self._joint(flat)
+        n = joint.sum()
         coverage = n_covered / n_scene if n_scene else 0.0
         if coverage < self.params.min_coverage or n == 0:
             return self.params.degenerate_loss, coverage
-        if self.learned is not None:
-            if joint is not None:  # a soft target: the expected cost, no band
-                return float(np.sum(joint * self.learned) / n / self.h_target), coverage
-            return float(total / n / self.h_target), coverage
         if self.frozen is not None:
             return float(np.sum(joint * self.frozen) / n / self.h_target), coverage
         if self.prior is not None:
             return float(_likelihood(joint, self.prior, self.params.prior_weight,
                                      self.h_target)), coverage
         return float(_likelihood(joint, _NO_PRIOR, 0.0, self.h_target)), coverage
-
