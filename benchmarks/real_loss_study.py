@@ -15,8 +15,8 @@ setting of a scene. Per run it records the error, the loss, the seconds and the 
 Settings (comma separated): ``l2`` the paper's masked L2 (no band), ``band`` L2 + 4 px boundary
 band, ``_uC`` adds ``uncovered_cost`` C, ``mi`` mutual information, ``lik`` the likelihood under
 a confusion matrix shrunk towards a prior (``_aW`` its ``prior_weight``, ``_cW`` its
-``confusion_weight``, ``_em`` held through each stage, ``_epN`` held and learned
-from the frame with a prior of N pixels), ``bal`` the class-balanced mismatch
+``confusion_weight``, ``_em`` / ``_noem`` the E step at each stage's start on / off, ``_epN``
+its prior of N pixels), ``bal`` the class-balanced mismatch
 (band and ``_uC`` apply), ``+p`` the class
 probabilities as the target. ``--label-noise`` applies a noise model of
 ``semcal_tools.scenes.labelnoise`` to labels.png (synthetic scenes).
@@ -62,6 +62,8 @@ def setting_params(name: str, base):
             loss = replace(loss, prior_weight=float(m[1:]))
         elif m == "em":
             loss = replace(loss, em=True)
+        elif m == "noem":  # the likelihood re-estimated at every pose throughout
+            loss = replace(loss, em=False)
         elif m.startswith("ep"):  # em with a Dirichlet prior of this many pixels
             loss = replace(loss, em=True, em_prior_pixels=float(m[2:]))
         elif m.startswith("c"):

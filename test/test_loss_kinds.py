@@ -87,19 +87,33 @@ def test_the_prior_weight_spans_mi_and_a_fixed_identity():
     assert likelihood_share(joint, prior, 1.0) > likelihood_share(joint, prior, 0.0)
 
 
-def test_em_holds_the_confusion_matrix_until_thawed():
-    """Frozen at the truth, a misaligned view costs more than when C is re-estimated there (the
-    re-estimate absorbs part of the misalignment); thawed, the loss is the stateless one."""
+def test_the_e_step_trusts_the_learned_costs_as_far_as_the_labels_agree():
+    """Clean labels (agreement 1 at the E step) get the learned costs alone: 0 at the truth.
+    Labels that agree on less than ``em_agreement``'s low end keep the likelihood re-estimated
+    at each pose, unchanged; in between, the loss is the blend. Thawed: re-estimated again."""
     t = _street()
     truth, off = _render(t), _render(t, 3)
-    loss = LabelLoss(t, LossParams(kind="likelihood", em=True))
-    free = loss(off)
+    params = LossParams(kind="likelihood", em=True)
+    plain = LabelLoss(t, replace(params, em=False))
+    loss = LabelLoss(t, params)
     loss.freeze(truth)
-    held = loss(off)
-    assert held > free
-    assert loss(truth) <= held
+    assert loss.cost.share == 1.0 and loss(truth) == 0.0 and loss(off) > 0.0
     loss.thaw()
-    assert loss(off) == pytest.approx(free)
+    assert loss(off) == pytest.approx(plain(off), rel=1e-12)
+    poor = truth.copy()  # a real segmenter's agreement: 30 % of what is drawn disagrees
+    rng = np.random.default_rng(0)
+    drawn = np.nonzero(poor.ravel() != INVALID)[0]
+    poor.ravel()[rng.choice(drawn, int(0.3 * drawn.size), replace=False)] = VEG
+    loss.freeze(poor)
+    assert loss.cost.share == 0.0 and loss(off) == pytest.approx(plain(off), rel=1e-12)
+    middle = truth.copy()  # 13 % disagree: agreement 0.87, halfway through the range
+    middle.ravel()[rng.choice(drawn, int(0.13 * drawn.size), replace=False)] = CAR
+    loss.freeze(middle)
+    assert 0.3 < loss.cost.share < 0.7
+    sharp = LabelLoss(t, replace(params, em_agreement=(0.0, 0.01)))
+    sharp.freeze(middle)  # the same learned costs, trusted in full
+    share = loss.cost.share
+    assert loss(off) == pytest.approx(share * sharp(off) + (1 - share) * plain(off), rel=1e-12)
 
 
 def test_loss_parameters_are_checked():
@@ -108,7 +122,9 @@ def test_loss_parameters_are_checked():
     with pytest.raises(ValueError, match="confusion_weight"):
         replace(LossParams(), confusion_weight=2.0)
     with pytest.raises(ValueError, match="em_prior_pixels"):
-        LossParams(em_prior_pixels=-1.0)
+        LossParams(em_prior_pixels=0.0)
+    with pytest.raises(ValueError, match="em_agreement"):
+        LossParams(em_agreement=(0.9, 0.8))
 
 
 def test_the_default_is_the_likelihood_and_the_paper_loss_file_selects_l2():

@@ -253,9 +253,10 @@ class LikelihoodCost:
         self.band_px = params.boundary_band_px / scale
         self.prior = confusion_prior(params.confusion_weight) if params.kind == "likelihood" \
             else None
-        self.frozen: np.ndarray | None = None  # -log C held fixed (freeze), or None
-        # the learned confusion's per-pixel costs (freeze with em_prior_pixels), or None
+        # the learned confusion's per-pixel costs held by freeze (None: re-estimated at each
+        # pose), and the learned loss's share of the loss while held
         self.learned: np.ndarray | None = None
+        self.share = 0.0
         self.dist = np.zeros((1, 1), np.uint8)  # the band's class distances, at first need
         self.soft = probabilities is not None
         self.probabilities = (np.ascontiguousarray(probabilities.reshape(-1, N_CLASSES),
@@ -278,27 +279,33 @@ class LikelihoodCost:
         return joint, n_scene, n_covered
 
     def freeze(self, flat: np.ndarray) -> None:
-        """The E step: the confusion matrix at ``flat`` held fixed until :meth:`thaw`, learned
-        from the frame (``em_prior_pixels`` > 0, :func:`learned_costs`) or shrunk towards the
-        prior (then the loss is the mean of -log C[rendered, label] under it). With C
-        re-estimated at every pose the loss absorbs part of a misalignment into C (a flat
-        basin: 3-4 % per 25 cm on real frames); held fixed, a misplaced boundary costs what
-        the labels at the estimate said it should."""
+        """The E step at ``flat``: the frame's confusion learned there (:func:`learned_costs`)
+        and held until :meth:`thaw`, trusted as far as the labels agree with the map there
+        (``em_agreement``: the share of the learned loss, the rest the likelihood re-estimated
+        at each pose). Clean labels get the learned costs alone: every mismatch costs alike and
+        the minimum sits where L2's does (the re-estimated likelihood's lies a few cm off on
+        ideal labels: its fixed shrinkage caps what agreement earns and pixels no point covers
+        count). A real segmenter's labels keep the tolerant likelihood, which the learned costs
+        lost to on real frames (the evidence in docs/engine.md)."""
         if self.prior is None:
             return
         joint, _, _ = self._joint(flat)
-        if self.params.em_prior_pixels > 0:
-            pseudo = self.params.em_prior_pixels / (self.scale * self.scale)
-            self.learned = learned_costs(joint, self.prior, pseudo)
-            if self.band_px > 0 and self.dist.shape[0] != N_CLASSES:
-                self.dist = class_distances(self.target.reshape(self.shape), self.band_px)
+        drawn = joint[:N_CLASSES].sum()
+        agreement = float(np.trace(joint[:N_CLASSES]) / drawn) if drawn > 0 else 0.0
+        lo, hi = self.params.em_agreement
+        self.share = float(np.clip((agreement - lo) / (hi - lo), 0.0, 1.0))
+        if self.share <= 0.0:
+            self.learned = None
             return
-        conf = shrunk_confusion(joint, self.prior, self.params.prior_weight)
-        self.frozen = -np.log(np.maximum(conf, 1e-4))
+        pseudo = self.params.em_prior_pixels / (self.scale * self.scale)
+        self.learned = learned_costs(joint, self.prior, pseudo)
+        if self.band_px > 0 and self.dist.shape[0] != N_CLASSES:
+            self.dist = class_distances(self.target.reshape(self.shape), self.band_px)
 
     def thaw(self) -> None:
-        """Back to the confusion matrix re-estimated at every pose."""
-        self.frozen = self.learned = None
+        """Back to the likelihood re-estimated at every pose."""
+        self.learned = None
+        self.share = 0.0
 
     def evaluate(self, flat: np.ndarray) -> tuple[float, float]:
         if self.learned is not None:
@@ -308,14 +315,20 @@ class LikelihoodCost:
             coverage = n_covered / n_scene if n_scene else 0.0
             if coverage < self.params.min_coverage or n == 0:
                 return self.params.degenerate_loss, coverage
-            return float(total / n / self.h_target), coverage
+            sharp = float(total / n / self.h_target)
+            if self.share >= 1.0:
+                return sharp, coverage
+            tolerant, _ = self._reestimated(flat)
+            return self.share * sharp + (1.0 - self.share) * tolerant, coverage
+        return self._reestimated(flat)
+
+    def _reestimated(self, flat: np.ndarray) -> tuple[float, float]:
+        """The likelihood (or ``mi``) with the confusion estimated at this pose."""
         joint, n_scene, n_covered = self._joint(flat)
         n = joint.sum()
         coverage = n_covered / n_scene if n_scene else 0.0
         if coverage < self.params.min_coverage or n == 0:
             return self.params.degenerate_loss, coverage
-        if self.frozen is not None:
-            return float(np.sum(joint * self.frozen) / n / self.h_target), coverage
         if self.prior is not None:
             return float(_likelihood(joint, self.prior, self.params.prior_weight,
                                      self.h_target)), coverage

@@ -45,14 +45,18 @@ class LossParams:
     prior_weight: float = 1.0
     # likelihood: a usual confusion's weight in the prior, against 1 on the diagonal
     confusion_weight: float = 0.3
-    # likelihood: hold the confusion matrix fixed through each refinement stage, estimated at
-    # the stage's start (EM); false = re-estimated at every pose
-    em: bool = False
-    # likelihood with em: the confusion learned at a stage's start is the frame's own histogram
-    # plus this many pseudo-pixels of the prior per rendered class (full-resolution pixels;
-    # a Dirichlet prior, so its weight falls as the class's evidence grows); 0 = shrunk by
-    # ``prior_weight`` as at every pose
-    em_prior_pixels: float = 0.0
+    # likelihood: EM's E step at each refinement stage's start (Dempster, Laird & Rubin 1977):
+    # the confusion between map and label classes learned from the frame there and held through
+    # the stage; how much the stage trusts it follows the labels' agreement (em_agreement)
+    em: bool = True
+    # the learned confusion's prior: this many pseudo-pixels per rendered class (full
+    # resolution; a Dirichlet prior, so the frame's evidence outweighs it as it grows)
+    em_prior_pixels: float = 100.0
+    # the learned loss's share rises from 0 to 1 as the labels' agreement with the map at the
+    # E step rises over this range (below: the likelihood re-estimated at every pose, tolerant of
+    # a real segmenter's confusions; above: the learned costs alone, as sharp as L2 on clean
+    # labels). Measured agreement: real frames 0.38-0.82, synthetic labels 0.93-0.99
+    em_agreement: tuple[float, float] = (0.84, 0.90)
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -76,9 +80,13 @@ class LossParams:
         if not 0.0 <= self.confusion_weight <= 1.0:
             raise ValueError(f"loss.confusion_weight must be in [0, 1], got "
                              f"{self.confusion_weight}")
-        if not 0.0 <= self.em_prior_pixels <= 1e6:
-            raise ValueError(f"loss.em_prior_pixels must be in [0, 1e6], got "
+        if not 0.0 < self.em_prior_pixels <= 1e6:
+            raise ValueError(f"loss.em_prior_pixels must be in (0, 1e6], got "
                              f"{self.em_prior_pixels}")
+        lo, hi = (float(v) for v in self.em_agreement)
+        if not 0.0 <= lo < hi <= 1.0:
+            raise ValueError(f"loss.em_agreement must be [low, high] with 0 <= low < high <= 1, "
+                             f"got {list(self.em_agreement)}")
         if not 0.0 <= self.boundary_band_px <= 50.0:
             raise ValueError(f"loss.boundary_band_px must be in [0, 50], got "
                              f"{self.boundary_band_px}")
