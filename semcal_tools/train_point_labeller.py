@@ -1,9 +1,12 @@
 """Train the geometric point labeller's forest (``semcal_ros/segmentation/data/point_labeller.npz``).
 
 Where exact point labels exist: synthetic scans of the scene generator's worlds (every layout,
-several seeds) seen by eight simulated lidars (spinning 16-128 beams at 1.7-5 m, a solid-state
-pattern with a narrow field of view), plus at most one SemanticKITTI scan (``--kitti-scans``;
-the benchmark holds the others out). Each scan goes through the labeller's own feature code
+several seeds) seen by nine simulated lidars (spinning 16-128 beams at 1.7-5 m, a narrow
+top-mounted 64-beam pattern denser near the horizon, a solid-state pattern with a narrow field of
+view), plus at most one SemanticKITTI scan (``--kitti-scans``; the benchmarks hold the others
+out) as recorded and resampled to ``--kitti-patterns`` other lidars (every 2nd / 4th beam, the
+narrow pattern and 16-40 even beams at 1.7-2.5 m: :mod:`semcal_tools.lidar_patterns`).
+Each scan goes through the labeller's own feature code
 (:func:`semcal_ros.segmentation.geometric.scan_features`), each voxel takes the majority class of
 its points, and a scikit-learn random forest is fitted on a class-capped sample and written as
 plain arrays (:mod:`semcal_ros.segmentation.forest`). scikit-learn is needed here only, never at
@@ -26,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from semcal_ros.engine.labels import KITTI_ID
+from semcal_tools.lidar_patterns import NARROW_BEAMS, resample, training_patterns
 
 REPO = Path(__file__).resolve().parents[1]
 KITTI = REPO.parent / "shared" / "data" / "kitti_odometry_00"
@@ -68,8 +72,15 @@ class Sensor:
     random_points: int = 0
     half_width_deg: float = 180.0
     range_noise: float = 0.02
+    elevations: tuple[float, ...] | None = None  # a beam table (deg) instead of even lines
 
     def directions(self, rng: np.random.Generator) -> np.ndarray:
+        if self.elevations is not None:
+            el = np.radians(np.asarray(self.elevations, np.float64))
+            az = np.radians(np.arange(0.0, 360.0, self.step_deg))
+            e, a = np.meshgrid(el, az, indexing="ij")
+            return np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)],
+                            -1).reshape(-1, 3)
         if self.random_points:
             az = np.radians(rng.uniform(-self.half_width_deg, self.half_width_deg,
                                         self.random_points))
@@ -89,6 +100,9 @@ SENSORS = (
     Sensor("scene128", 128, 45.0, -45.0, 0.25, 3.0),
     Sensor("livox", 0, 12.5, -12.5, 0.0, 1.8, random_points=100_000, half_width_deg=40.0),
     Sensor("mast64", 64, 2.0, -24.9, 0.2, 5.0),
+    # the PJLab frames' top-mounted 64-beam lidar: dense near the horizon, +15 to -25 deg
+    Sensor("narrow64", 64, 14.88, -24.9, 0.2, 2.4,
+           elevations=NARROW_BEAMS + (3.04, 5.06, 8.06, 11.03, 14.88)),
 )
 
 
@@ -157,17 +171,28 @@ def synthetic_samples(kinds: tuple[str, ...], seeds: range, scans_per_sensor: in
     return np.concatenate(xs), np.concatenate(ys)
 
 
-def kitti_samples(scans: list[int], min_x: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def kitti_samples(scans: list[int], min_x: float | None = None, patterns: int = 0,
+                  seed: int = 0, log=print) -> tuple[np.ndarray, np.ndarray]:
+    """Features and targets of SemanticKITTI scans as recorded and, with ``patterns``, as that
+    many other lidars would have seen them (:func:`semcal_tools.lidar_patterns.resample`: fewer
+    beams, a narrow top-mounted pattern, other mounting heights)."""
     from semcal_ros.io import kitti
 
     xs, ys = [], []
+    rng = np.random.default_rng(seed)
     for i in scans:
         cloud = kitti.read_scan(KITTI / "velodyne" / f"{i:06d}.bin")
         labels = (np.fromfile(KITTI / "labels" / f"{i:06d}.label", np.uint32) & 0xFFFF
                   ).astype(np.uint16)
-        x, y = scan_samples(cloud.xyz, labels, cloud.extra.get("intensity"), min_x)
-        xs.append(x)
-        ys.append(y)
+        intensity = cloud.extra.get("intensity")
+        views = [(cloud.xyz, labels, intensity)]
+        for pattern in training_patterns(rng, patterns):
+            views.append(resample(cloud.xyz, labels, intensity, pattern))
+        for xyz, lab, inten in views:
+            x, y = scan_samples(xyz, lab, inten, min_x)
+            xs.append(x)
+            ys.append(y)
+        log(f"SemanticKITTI scan {i}: {len(views)} views, {sum(len(v[0]) for v in views)} points")
     return np.concatenate(xs), np.concatenate(ys)
 
 
@@ -212,8 +237,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kitti-min-x", type=float,
                     help="only the SemanticKITTI voxels ahead of this x (m): with the benchmark's "
                          "--max-x, a test on ground the training never saw")
-    ap.add_argument("--kitti-weight", type=float, default=1.0,
+    ap.add_argument("--kitti-weight", type=float, default=2.0,
                     help="weight of the SemanticKITTI samples relative to all synthetic ones")
+    ap.add_argument("--kitti-patterns", type=int, default=48,
+                    help="also the SemanticKITTI scan resampled to this many other lidars "
+                         "(semcal_tools/lidar_patterns.py)")
+    ap.add_argument("--kitti-cap", type=int, default=60_000,
+                    help="samples per class of the SemanticKITTI source (all its views)")
     ap.add_argument("--cap", type=int, default=20_000, help="samples per class and source")
     ap.add_argument("--trees", type=int, default=20)
     ap.add_argument("--depth", type=int, default=18)
@@ -242,17 +272,18 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {len(y)} samples to {args.samples_out}")
             return 0
     if kitti_scans:
-        x, y = kitti_samples(kitti_scans, args.kitti_min_x)
+        x, y = kitti_samples(kitti_scans, args.kitti_min_x, args.kitti_patterns, args.seed)
         sources.append(("kitti", x, y))
     xs, ys, ws = [], [], []
     for name, x, y in sources:
-        x, y = capped(x, y, args.cap, rng)
-        w = np.full(len(y), args.kitti_weight if name == "kitti" else 1.0)
+        x, y = capped(x, y, args.kitti_cap if name == "kitti" else args.cap, rng)
+        # each source weighs 1 in all (the SemanticKITTI one --kitti-weight), whatever its size
+        w = np.full(len(y), (args.kitti_weight if name == "kitti" else 1.0) / len(y))
         counts = np.bincount(y, minlength=len(CLASSES))
         print(f"{name}: {len(y)} samples, per class {dict(zip(CLASSES, counts.tolist()))}")
         xs.append(x)
         ys.append(y)
-        ws.append(w / w.sum())
+        ws.append(w)
     x, y, w = np.concatenate(xs), np.concatenate(ys), np.concatenate(ws) * len(np.concatenate(ys))
     t0 = time.perf_counter()
     model = fit(x, y, w, args.trees, args.depth, args.min_leaf, args.seed)

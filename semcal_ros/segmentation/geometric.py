@@ -313,17 +313,19 @@ def scan_features(xyz: np.ndarray, intensity: np.ndarray | None = None,
 
 
 def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
-               params: GeometricParams | None = None) -> np.ndarray:
+               params: GeometricParams | None = None, model: str | Path | None = None
+               ) -> np.ndarray:
     """(N,) uint16 SemanticKITTI ids of one scan in the lidar frame (z up, sensor at origin).
 
     Points with NaN/inf coordinates, nearer than ``min_range`` or farther than ``max_range``
     get 0 (unlabeled), as do voxels the forest leaves to its "other" class (people, bicycles,
     clutter). ``ValueError`` (one line) for a scan that is not (N, 3), is empty, has no usable
-    point, or whose intensity length differs.
+    point, or whose intensity length differs. ``model``: another forest file (default: the
+    shipped one).
     """
     params = params or GeometricParams()
     index, feats = scan_features(xyz, intensity, params)
-    forest = load_model()
+    forest = load_model(str(model)) if model is not None else load_model()
     shares = forest.predict_proba(feats.values)
     k = min(int(params.smoothing_neighbours), feats.neighbours.shape[1])
     if k > 1:
@@ -390,3 +392,33 @@ def point_agreement(predicted: np.ndarray, reference: np.ndarray, mapping=None,
                            int(is_ref.sum()), int(is_pred.sum()))
     return PointAgreement(float((ref == pred).mean()) if len(ref) else float("nan"),
                           int(len(ref)), per_class)
+
+
+#: Coarse groups of SemanticKITTI ids (issue 33's measure; issue 41's per-pattern targets).
+COARSE = {
+    "ground": ("road", "lane-marking", "parking", "sidewalk", "other-ground", "terrain"),
+    "building": ("building", "other-structure"),
+    "vegetation": ("vegetation", "trunk"),
+    "pole": ("pole", "traffic-sign"),
+    "vehicle": ("car", "truck", "bus", "other-vehicle", "moving-car", "moving-truck",
+                "moving-bus", "moving-other-vehicle"),
+}
+
+
+def coarse_agreement(predicted: np.ndarray, reference: np.ndarray
+                     ) -> tuple[float, dict[str, tuple[float, float, int]]]:
+    """(overall, {group: (precision, recall, reference points)}) over the reference points of
+    the :data:`COARSE` groups: a point agrees when its prediction is in its reference's group."""
+    lut = np.zeros(65536, np.int8)
+    for k, members in enumerate(COARSE.values(), start=1):
+        for name in members:
+            lut[KITTI_ID[name]] = k
+    cp, cr = lut[np.asarray(predicted)], lut[np.asarray(reference)]
+    keep = cr > 0
+    groups = {}
+    for k, name in enumerate(COARSE, start=1):
+        both = int(((cr == k) & (cp == k)).sum())
+        n_ref, n_pred = int((cr == k).sum()), int((cp == k).sum())
+        groups[name] = (both / max(n_pred, 1), both / max(n_ref, 1), n_ref)
+    overall = float((cp[keep] == cr[keep]).mean()) if keep.any() else float("nan")
+    return overall, groups
