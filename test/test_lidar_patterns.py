@@ -1,5 +1,9 @@
-"""KITTI scans resampled to other lidars (semcal_tools/lidar_patterns.py): whole rings, beam
-tables seen from another height, intensity rescaled or absent."""
+"""KITTI scans resampled to other lidars (semcal_tools/lidar_patterns.py), and the geometric
+point labeller on them: held-out SemanticKITTI scan 1 seen by fewer beams, by a narrow
+top-mounted pattern at 2.5 m and without intensity must keep its coarse classes (issue 41).
+
+Floors are set below the measured figures (docs/segmentation.md, benchmarks/lidar_patterns.py).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ import numpy as np
 import pytest
 
 from semcal_ros.engine.labels import KITTI_ID
+from semcal_ros.segmentation.geometric import coarse_agreement, label_scan
 from semcal_tools.lidar_patterns import (KITTI_HEIGHT, NARROW_BEAMS, Pattern, kitti_rings,
                                          resample, training_patterns)
 
@@ -98,3 +103,23 @@ def test_intensity_rescaled_and_training_patterns():
     assert {p.name.rstrip("0123456789.@")[:6] for p in patterns} >= {"every", "narrow", "unifor"}
     heights = [p.height for p in patterns if p.beams is not None]
     assert min(heights) >= 1.7 and max(heights) <= 2.5 and max(heights) - min(heights) > 0.3
+
+
+#: Coarse floors on held-out scan 1 per pattern (measured figures in docs/segmentation.md).
+PATTERN_FLOORS = {
+    "32 beams": (Pattern("32", every=2, offset=1), 0.9, 0.85),
+    "narrow at 2.5 m, no intensity": (Pattern("n", beams=NARROW_BEAMS, height=2.5,
+                                              intensity="none"), 0.88, 0.85),
+}
+
+
+@needs_kitti
+@pytest.mark.parametrize("name", sorted(PATTERN_FLOORS))
+def test_labeller_keeps_coarse_classes_on_other_lidars(name):
+    pattern, coarse_floor, building_floor = PATTERN_FLOORS[name]
+    xyz, intensity, labels = kitti_scan(1)
+    pts, lab, inten = resample(xyz, labels, intensity, pattern)
+    overall, groups = coarse_agreement(label_scan(pts, inten), lab)
+    assert overall >= coarse_floor, (overall, groups)
+    assert groups["building"][1] >= building_floor, groups
+    assert groups["ground"][1] >= 0.95, groups
