@@ -7,7 +7,8 @@
 #
 # OUT_DIR/kitti00_NNNNNN_esp  the nine KITTI odometry 00 frames (000000 and the eight of
 #                             kitti_odometry_00_frames): one rig, one extrinsic
-# OUT_DIR/kitti00_000000x6_esp frame 0 with scans 0-5 (poses.txt)
+# OUT_DIR/kitti00_000000x6_esp frame 0 with scans 0-5 (poses.txt); x3r, x6r: scans 0-2 / 0-5
+#                             without poses (registered to each other)
 # OUT_DIR/object_NAME_esp     the four KITTI object frames
 # OUT_DIR/pjlab_NAME_esp      the four PJLab frames (another lidar, camera and city)
 set -euo pipefail
@@ -36,6 +37,11 @@ for f in 000556 001112 001668 002224 002780 003336 003892 004448; do
 done
 scene kitti00_000000x6_esp --image $K/image_2/000000.png \
   --scans $K/velodyne/00000{0,1,2,3,4,5}.bin --poses $K/poses.txt --calib $K/calib.txt
+# the same without poses: the scans registered to each other (issue 41 item 3)
+scene kitti00_000000x3r_esp --image $K/image_2/000000.png \
+  --scans $K/velodyne/00000{0,1,2}.bin --calib $K/calib.txt
+scene kitti00_000000x6r_esp --image $K/image_2/000000.png \
+  --scans $K/velodyne/00000{0,1,2,3,4,5}.bin --calib $K/calib.txt
 O=$DATA/kitti_object
 for f in tr_000000 tr_000001 tr_000002 te_000007; do
   scene "object_${f}_esp" --image $O/$f.png --scans $O/$f.bin --calib $O/$f.txt

@@ -659,3 +659,23 @@ def test_map_builder_node_says_when_it_falls_behind(tmp_path):
         finally:
             executor.shutdown()
             node.destroy_node()
+
+
+def test_scan_odometry_recovers_the_drive_from_the_scans_alone():
+    """Issue 41 item 3: scans of a synthetic street taken 0.8 m apart, no poses: registered scan
+    to scan (each started from the previous pair's motion), every pose within 3 cm / 0.1 deg of
+    the truth relative to the first scan; scans with nothing to register refuse in one line."""
+    from semcal_ros.mapping.odometry import scan_odometry
+    from semcal_ros.mapping.registration import rotation_deg
+
+    world = make_world()
+    truth = drive(5, step=0.8)
+    scans = [scan_from(world, pose, seed=k).xyz for k, pose in enumerate(truth)]
+    poses = scan_odometry(scans)
+    assert len(poses) == 5 and np.array_equal(poses[0], np.eye(4))
+    for k in range(1, 5):
+        want = np.linalg.inv(truth[0]) @ truth[k]
+        err = np.linalg.inv(want) @ poses[k]
+        assert np.linalg.norm(err[:3, 3]) < 0.03 and rotation_deg(err) < 0.1, (k, err)
+    with pytest.raises(ValueError, match="scan 2 could not be registered to scan 1.*--poses"):
+        scan_odometry([scans[0], np.ones((5, 3))])

@@ -127,6 +127,27 @@ def test_kitti_odometry_two_scans_semantickitti_parked_cars_stay(tmp_path, capsy
 
 
 @needs_data
+def test_kitti_scans_without_poses_are_registered_to_each_other(tmp_path, capsys):
+    """Issue 41 item 3: three KITTI scans and no poses file: each is registered to the one
+    before it, then placed as given poses are (de-skew + multiway ICP, scan 0 fixed). The car
+    moves ~0.7 m per sweep straight ahead (ICP's figure with poses.txt: the test above)."""
+    out = tmp_path / "scene"
+    scans = [KITTI / "velodyne" / f"00000{i}.bin" for i in (0, 1, 2)]
+    code, printed, err = run(["--image", KITTI / "image_2" / "000000.png", "--scans", *scans,
+                              "--calib", KITTI / "calib.txt", "--cloud-labels", "semantickitti",
+                              "--truth-labels", "--out", out], capsys)
+    assert code == 0, err
+    poses = yaml.safe_load((out / "scans" / "poses.yaml").read_text())["scans"]
+    np.testing.assert_allclose(poses[0]["translation"], 0, atol=1e-9)
+    for k, (lo, hi) in ((1, (0.6, 0.8)), (2, (1.25, 1.6))):
+        x, y, z = poses[k]["translation"]
+        assert lo < x < hi and abs(y) < 0.1 and abs(z) < 0.1, poses[k]["translation"]
+    meta = yaml.safe_load((out / "scene.yaml").read_text())
+    assert any("registered scan to scan" in n for n in meta["cloud_label_notes"]), meta
+    assert len(ply.read_ply(out / "map.ply")) > len(kitti.read_velodyne(scans[0])) // 4
+
+
+@needs_data
 def test_kitti_object_calib_with_r0_rect_and_a_label_file(tmp_path, capsys):
     frame = OBJECT / "tr_000000"
     scan = kitti.read_velodyne(frame.with_suffix(".bin"))
@@ -336,21 +357,24 @@ def test_bad_inputs_are_one_line(tmp_path, capsys):
         assert not (tmp_path / "out").exists(), message
 
 
-def test_two_scans_need_poses(tmp_path, capsys):
+def test_two_scans_that_cannot_be_registered_need_poses(tmp_path, capsys):
     image = tmp_path / "image.png"
     files.write_rgb_image(image, np.zeros((100, 200, 3), np.uint8))
-    scan = tmp_path / "a.ply"
-    ply.write_ply(scan, LabelledCloud(np.ones((10, 3)), np.ones(10, np.uint16)))
+    rng = np.random.default_rng(0)
+    scan, other = tmp_path / "a.ply", tmp_path / "b.ply"  # two scans of places 500 m apart
+    ply.write_ply(scan, LabelledCloud(rng.uniform(-20, 20, (500, 3)), np.ones(500, np.uint16)))
+    ply.write_ply(other, LabelledCloud(rng.uniform(480, 520, (500, 3)), np.ones(500, np.uint16)))
     from semcal_ros.engine.camera import CameraModel
 
     files.write_camera_info(tmp_path / "cam.yaml", CameraModel.from_fov(200, 100, 90.0))
     write_extrinsic_yaml(tmp_path / "T.yaml", np.eye(4))
     files.write_label_image(tmp_path / "l.png", np.zeros((100, 200), np.uint8))
-    code, _, err = run(["--image", image, "--scans", scan, scan, "--camera-info",
+    code, _, err = run(["--image", image, "--scans", scan, other, "--camera-info",
                         tmp_path / "cam.yaml", "--extrinsic", tmp_path / "T.yaml",
-                        "--cloud-labels", scan, scan, "--labels", tmp_path / "l.png",
+                        "--cloud-labels", scan, other, "--labels", tmp_path / "l.png",
                         "--out", tmp_path / "out"], capsys)
-    assert code == 1 and "2 scans need --poses" in err and err.count("\n") == 1
+    assert code == 1 and "scan 2 could not be registered to scan 1" in err and "--poses" in err
+    assert err.count("\n") == 1
 
 
 def test_moved_vehicles_are_relabelled_parked_ones_kept():

@@ -74,7 +74,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--poses", type=Path,
                    help="poses of the scans: a scans/poses.yaml-format file (entries matched "
                         "by file name) or a KITTI poses.txt (rows by scan number; needs a KITTI "
-                        "--calib for Tr); needed with more than one scan")
+                        "--calib for Tr); without it several scans are registered to each "
+                        "other by ICP, the first held fixed")
     p.add_argument("--initial", type=Path,
                    help="initial pose YAML (default: the truth perturbed by up to 1 m / 2 deg, "
                         "--seed)")
@@ -314,8 +315,18 @@ def gather_inputs(args: argparse.Namespace, plan: FramePlan):
             raise FileNotFoundError(f"scan not found: {path}")
     poses = scan_poses_in_map(list(plan.scans), args.poses, kitti_tr)
     clouds = [read_lidar_scan(p) for p in plan.scans]
+    registered = []
+    if poses is None:  # several scans, no poses: registered to each other, the first fixed
+        import numpy as np
+
+        from semcal_ros.mapping.odometry import scan_odometry
+
+        poses = scan_odometry([c.xyz for c in clouds])
+        registered = [f"{len(clouds)} scans without poses: registered scan to scan (ICP), "
+                      f"{np.linalg.norm(poses[-1][:3, 3]):.2f} m from the first to the last"]
     clouds, described, notes = label_scans(list(plan.scans), clouds, list(plan.cloud_labels),
                                            poses, args.label_distance)
+    notes = registered + list(notes)
     labeller = plan.cloud_labels[0] if list(plan.cloud_labels) in ([m] for m in MODEL_FREE) \
         else None
     return RealSceneInputs(rgb, camera, clouds, [str(p) for p in plan.scans], poses,

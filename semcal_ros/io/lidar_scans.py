@@ -63,19 +63,18 @@ def read_point_labels(path: str | Path, n_points: int, scan: str | Path) -> np.n
 
 
 def scan_poses_in_map(scan_paths: list[Path], poses_path: Path | None,
-                      kitti_tr: np.ndarray | None = None) -> list[np.ndarray]:
+                      kitti_tr: np.ndarray | None = None) -> list[np.ndarray] | None:
     """Each scan's lidar pose in the map frame (the first scan's lidar frame).
 
     ``poses_path``: a ``scans/poses.yaml``-format file (lidar poses in any world frame, entries
     matched to the scans by file name) or a KITTI ``poses.txt`` (cam0 poses, rows by the scan
-    file's number, turned into lidar poses through ``kitti_tr``). One scan needs none.
+    file's number, turned into lidar poses through ``kitti_tr``). One scan needs none; several
+    without a file: None (the caller registers them, :mod:`semcal_ros.mapping.odometry`).
     """
     from semcal_ros.io.scene_scans import read_scan_poses
 
     if poses_path is None:
-        if len(scan_paths) > 1:
-            raise ValueError(f"{len(scan_paths)} scans need --poses (where each scan was taken)")
-        return [np.eye(4)]
+        return None if len(scan_paths) > 1 else [np.eye(4)]
     poses_path = Path(poses_path)
     if not poses_path.is_file():
         raise FileNotFoundError(f"poses file not found: {poses_path}")
