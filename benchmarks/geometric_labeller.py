@@ -26,19 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from semcal_ros.segmentation.geometric import COARSE  # issue 33's coarse groups
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "kitti_odometry_00"
-
-
-#: Coarse groups of SemanticKITTI ids (issue 33's measure).
-COARSE = {
-    "ground": ("road", "lane-marking", "parking", "sidewalk", "other-ground", "terrain"),
-    "building": ("building", "other-structure"),
-    "vegetation": ("vegetation", "trunk"),
-    "pole": ("pole", "traffic-sign"),
-    "vehicle": ("car", "truck", "bus", "other-vehicle", "moving-car", "moving-truck",
-                "moving-bus", "moving-other-vehicle"),
-}
 
 
 def coarse_table(pred: np.ndarray, ref: np.ndarray) -> str:
