@@ -1,7 +1,8 @@
 """The loss between the map's rendered labels and the camera's label image, one module per kind.
 
 ``engine.loss.kind`` chooses (``LOSS_KINDS``): ``likelihood`` (the default) and ``mi`` in
-likelihood.py, the paper's ``l2`` and ``huber`` in colour.py, ``balanced`` in balanced.py. Each
+likelihood.py, the paper's ``l2`` and ``huber`` in colour.py, ``balanced`` in balanced.py (the
+boundary band they share: band.py). Each
 kind is a cost object with ``evaluate``, ``freeze`` and ``thaw``; :class:`LabelLoss` holds the
 target once and hands a rendered image to its kind. probabilities.py: a segmenter's softmax as
 the target; outliers.py: label errors left out of a second refinement.
@@ -13,7 +14,8 @@ import numpy as np
 
 from semcal_ros.engine.labels import INVALID
 from semcal_ros.engine.loss.balanced import balanced_table
-from semcal_ros.engine.loss.colour import ColourCost, class_distances, colour_reference, pair_table
+from semcal_ros.engine.loss.band import class_distances
+from semcal_ros.engine.loss.colour import ColourCost, colour_reference, pair_table
 from semcal_ros.engine.loss.likelihood import (
     CONFUSIONS, LEARNED_FLOOR, LikelihoodCost, conditional_entropy_share, confusion_prior,
     learned_costs, likelihood_reference, likelihood_share, shrunk_confusion,

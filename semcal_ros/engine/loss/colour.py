@@ -14,12 +14,13 @@ expected distance under its softmax (probabilities.py).
 
 from __future__ import annotations
 
-import cv2
 import numba
 import numpy as np
 
 from semcal_ros.engine.labels import INVALID, SKY, palette_array
+from semcal_ros.engine.loss.band import class_distances
 from semcal_ros.engine.loss.params import N_CLASSES, LossParams
+from semcal_ros.engine.loss.probabilities import COST_UNIT, expected_costs
 
 
 def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
@@ -34,20 +35,6 @@ def pair_table(kind: str = "l2", delta: float = 0.3) -> np.ndarray:
     a = np.abs(diff)
     huber = np.where(a <= delta, 0.5 * a * a, delta * (a - 0.5 * delta))
     return np.sum(huber, axis=2)
-
-
-def class_distances(target: np.ndarray, band_px: float) -> np.ndarray:
-    """uint8[N_CLASSES, H*W]: per class, the distance from each pixel to the nearest target pixel
-    of that class, as a share of ``band_px`` (255 = the band or farther). One OpenCV distance
-    transform per class present; absent classes are 255 everywhere."""
-    h, w = target.shape
-    out = np.full((N_CLASSES, h * w), 255, np.uint8)
-    for c in np.unique(target):
-        if c >= N_CLASSES:
-            continue
-        dist = cv2.distanceTransform((target != c).astype(np.uint8), cv2.DIST_L2, 5)
-        out[c] = np.minimum(dist.ravel() * (255.0 / band_px), 255.0).astype(np.uint8)
-    return out
 
 
 def colour_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray,
@@ -71,8 +58,6 @@ def colour_reference(rendered: np.ndarray, target: np.ndarray, table: np.ndarray
     coverage = float(n_scene - uncovered) / n_scene if n_scene else 0.0
     n_valid = int(valid.sum())
     if probabilities is not None:
-        from semcal_ros.engine.loss.probabilities import COST_UNIT, expected_costs
-
         expected = expected_costs(probabilities, table, target, band)[:, top * target.shape[1]:]
         total = float(expected[r_eff[valid], np.nonzero(valid)[0]].sum()) * COST_UNIT
     elif band > 0:
@@ -144,8 +129,6 @@ class ColourCost:
     def __init__(self, target: np.ndarray, shape: tuple[int, int], start: int,
                  params: LossParams, scale: int, probabilities: np.ndarray | None,
                  table: np.ndarray) -> None:
-        from semcal_ros.engine.loss.probabilities import COST_UNIT, expected_costs
-
         self.target, self.start, self.params, self.table = target, start, params, table
         band = params.boundary_band_px / scale
         self.banded = band > 0

@@ -33,7 +33,7 @@ import numba
 import numpy as np
 
 from semcal_ros.engine.labels import INVALID, SKY
-from semcal_ros.engine.loss.colour import class_distances
+from semcal_ros.engine.loss.band import class_distances
 from semcal_ros.engine.loss.params import N_CLASSES, LossParams
 
 #: Pairs of classes real segmenters and point labellers confuse with each other (measured on the

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from semcal_ros.engine.loss.colour import class_distances
+from semcal_ros.engine.loss.band import class_distances
 from semcal_ros.engine.loss.params import N_CLASSES
 
 #: expected costs are stored as uint16 in units of the largest colour distance / 65535
