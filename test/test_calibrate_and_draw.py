@@ -31,8 +31,10 @@ def test_cloud_and_shared_prepared_map_give_the_same_result_and_picture(world, t
     a, b = from_cloud.result, from_node.result
     assert translation_error(a.pose, GROUND_TRUTH) < 0.03
     # the two maps' local origins differ (float32 coordinates round differently), so the two
-    # searches take paths that differ by rounding: 7.1 mm / 0.036 deg apart measured here
-    assert translation_error(a.pose, b.pose) < 0.01 and rotation_error_deg(a.pose, b.pose) < 0.05
+    # searches take paths that differ by rounding: 7.1 mm / 0.036 deg apart measured here, 14 mm
+    # with the map jittered by 1e-6 m (make test-perturbed): where Nelder-Mead stops moves by
+    # about a centimetre with the rounding; the same answer is the same place within 2 cm
+    assert translation_error(a.pose, b.pose) < 0.02 and rotation_error_deg(a.pose, b.pose) < 0.1
     assert a.quality is not None and b.quality is not None and a.quality.verdict == b.quality.verdict
     assert from_cloud.overlay.shape == (target.shape[0], target.shape[1], 3)
     same = np.all(from_cloud.overlay == from_node.overlay, axis=2)
