@@ -4,22 +4,21 @@ Colours are a fixed function of labels, so the per-pixel colour distance is a lo
 class-pair table: no float colour images are ever built. The loss is the mean over valid pixels
 (beta * sum / numel in the paper's notation), which gives the optimiser's tolerances a fixed meaning.
 
-Validity, as in the paper's CARLA set-up: the target must carry a usable class; a pixel where no map
-point landed is rendered as sky, which counts where the target is sky and is masked where it is not
-(such holes come from map sparsity, not from a wrong pose). ``l2`` (the paper's squared
-distance) and ``huber`` share this module; ``balanced`` (balanced.py) uses its kernel with a
-table of its own. With the segmenter's class probabilities as the target a pixel costs the
-expected distance under its softmax (probabilities.py).
+The valid pixels and the mean over them are pixels.py's (shared with the likelihood's learned
+costs). ``l2`` (the paper's squared distance) and ``huber`` share this module; ``balanced``
+(balanced.py) uses the same kernel with a table of its own. With the segmenter's class
+probabilities as the target a pixel costs the expected distance under its softmax
+(probabilities.py).
 """
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from semcal_ros.engine.labels import INVALID, SKY, palette_array
 from semcal_ros.engine.loss.band import class_distances
 from semcal_ros.engine.loss.params import N_CLASSES, LossParams
+from semcal_ros.engine.loss.pixels import PIXEL_COSTS, TABLE, cost_sum, mean_cost
 from semcal_ros.engine.loss.probabilities import COST_UNIT, expected_costs
 
 
@@ -88,38 +87,7 @@ def _banded(rendered: np.ndarray, target: np.ndarray, table: np.ndarray, band: f
     return cost * weight
 
 
-@numba.njit(cache=True, nogil=True)
-def _loss_kernel(rendered, target, table, start, dist, banded, costs, soft, unit):
-    """Sums over the valid pixels: the table's cost of each pixel, with ``banded`` a mismatch
-    weighted by ``dist`` (the rendered class's distance in the target, 255 = the band or
-    farther); with ``soft`` the precomputed expected costs instead (``costs[rendered class,
-    pixel]``, uint16 in ``unit``s, summed as integers)."""
-    total = 0.0
-    counts = 0
-    n_valid = 0
-    n_scene = 0
-    n_covered = 0
-    for p in range(start, target.shape[0]):
-        t = target[p]
-        if t == INVALID:
-            continue
-        r = rendered[p]
-        if t != SKY:
-            n_scene += 1
-            if r == INVALID:
-                continue
-            n_covered += 1
-        elif r == INVALID:
-            r = SKY
-        if soft:
-            counts += costs[r, p]
-        elif banded:
-            if r != t:
-                total += table[r, t] * dist[r, p] * (1.0 / 255.0)
-        else:
-            total += table[r, t]
-        n_valid += 1
-    return total + counts * unit, n_valid, n_scene, n_covered
+_NO_PROBABILITIES = np.zeros((1, N_CLASSES), np.float32)  # the kernel's unused argument
 
 
 class ColourCost:
@@ -143,16 +111,10 @@ class ColourCost:
             self.dist = class_distances(target.reshape(shape), band)
 
     def evaluate(self, flat: np.ndarray) -> tuple[float, float]:
-        total, n_valid, n_scene, n_covered = _loss_kernel(
-            flat, self.target, self.table, self.start, self.dist, self.banded, self.costs,
-            self.soft, self.unit)
-        coverage = n_covered / n_scene if n_scene else 0.0
-        if self.params.uncovered_cost > 0:
-            n_valid += n_scene - n_covered
-            total += self.params.uncovered_cost * (n_scene - n_covered)
-        if n_valid == 0 or coverage < self.params.min_coverage:
-            return self.params.degenerate_loss, coverage
-        return total / n_valid, coverage
+        loss, coverage, _ = mean_cost(cost_sum(
+            flat, self.target, self.start, self.table, SKY, self.dist, self.banded, self.costs,
+            _NO_PROBABILITIES, PIXEL_COSTS if self.soft else TABLE, self.unit), self.params)
+        return loss, coverage
 
     def freeze(self, flat: np.ndarray) -> None:
         """Nothing to hold: the colour distances are fixed."""

@@ -35,6 +35,7 @@ import numpy as np
 from semcal_ros.engine.labels import INVALID, SKY
 from semcal_ros.engine.loss.band import class_distances
 from semcal_ros.engine.loss.params import N_CLASSES, LossParams
+from semcal_ros.engine.loss.pixels import EXPECTED, TABLE, cost_sum, mean_cost
 
 #: Pairs of classes real segmenters and point labellers confuse with each other (measured on the
 #: shared KITTI and PJLab frames, docs/real-data.md): the likelihood's prior gives them weight.
@@ -151,6 +152,7 @@ def conditional_entropy_share(joint: np.ndarray) -> float:
 
 #: the ``mi`` loss is the likelihood with no prior
 _NO_PRIOR = np.zeros((N_CLASSES + 1, N_CLASSES))
+_NO_COSTS = np.zeros((1, 1), np.uint16)  # the pixel kernel's unused argument
 
 
 @numba.njit(cache=True, nogil=True)
@@ -175,49 +177,6 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft):
         else:
             joint[row, t] += 1.0
     return n_scene, n_covered
-
-
-@numba.njit(cache=True, nogil=True)
-def _learned_kernel(rendered, target, start, costs, dist, banded, uncovered, probabilities,
-                    soft):
-    """Sum of :func:`learned_costs` over the valid target pixels, their count, the target's
-    map-class pixels and those a point covers. Pixels are valid as for the colour loss: a
-    map-class pixel no point covers costs ``uncovered`` (0: masked, the paper), nothing drawn
-    over sky is a match. A soft target (``probabilities``) costs its expected cost under the
-    segmenter's softmax. With ``banded`` a rendered class's cost is weighted by its distance
-    share in the labels (``dist``, 255 = the band or farther), as the colour loss's."""
-    total = 0.0
-    n = 0
-    n_scene = 0
-    n_covered = 0
-    for p in range(start, target.shape[0]):
-        t = target[p]
-        if t == INVALID:
-            continue
-        r = rendered[p]
-        if t != SKY:
-            n_scene += 1
-            if r == INVALID:
-                if uncovered > 0:
-                    n += 1
-                    total += uncovered
-                continue
-            n_covered += 1
-        elif r == INVALID:
-            r = N_CLASSES  # nothing drawn where the labels have sky: a match
-        n += 1
-        if soft:
-            c = 0.0
-            for k in range(costs.shape[1]):
-                c += probabilities[p, k] * costs[r, k]
-        elif r != t and r < N_CLASSES:
-            c = costs[r, t]
-        else:
-            continue
-        if banded and c > 0 and r < N_CLASSES:
-            c *= dist[r, p] * (1.0 / 255.0)
-        total += c
-    return total, n, n_scene, n_covered
 
 
 @numba.njit(cache=True, nogil=True)
@@ -309,17 +268,14 @@ class LikelihoodCost:
 
     def evaluate(self, flat: np.ndarray) -> tuple[float, float]:
         if self.learned is not None:
-            total, n, n_scene, n_covered = _learned_kernel(
-                flat, self.target, self.start, self.learned, self.dist, self.band_px > 0,
-                self.params.uncovered_cost, self.probabilities, self.soft)
-            coverage = n_covered / n_scene if n_scene else 0.0
-            if coverage < self.params.min_coverage or n == 0:
-                return self.params.degenerate_loss, coverage
-            sharp = float(total / n / self.h_target)
-            if self.share >= 1.0:
-                return sharp, coverage
+            sharp, coverage, judged = mean_cost(cost_sum(
+                flat, self.target, self.start, self.learned, N_CLASSES, self.dist,
+                self.band_px > 0, _NO_COSTS, self.probabilities,
+                EXPECTED if self.soft else TABLE, 1.0), self.params, self.h_target)
+            if not judged or self.share >= 1.0:
+                return float(sharp), coverage
             tolerant, _ = self._reestimated(flat)
-            return self.share * sharp + (1.0 - self.share) * tolerant, coverage
+            return self.share * float(sharp) + (1.0 - self.share) * tolerant, coverage
         return self._reestimated(flat)
 
     def _reestimated(self, flat: np.ndarray) -> tuple[float, float]:
