@@ -26,30 +26,21 @@ from pathlib import Path
 
 import numpy as np
 
-from semcal_ros.segmentation.geometric import COARSE  # issue 33's coarse groups
+from semcal_ros.segmentation.geometric import coarse_agreement  # issue 33's coarse groups
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "kitti_odometry_00"
 
 
 def coarse_table(pred: np.ndarray, ref: np.ndarray) -> str:
-    """Recall and precision per coarse group; overall over the reference points in a group."""
-    from semcal_ros.engine.labels import KITTI_ID
-
-    lut = np.zeros(65536, np.int8)
-    for k, members in enumerate(COARSE.values(), start=1):
-        for name in members:
-            lut[KITTI_ID[name]] = k
-    cp, cr = lut[pred], lut[ref]
-    keep = cr > 0
+    """Recall and precision per coarse group; overall over the reference points in a group
+    (:func:`semcal_ros.segmentation.geometric.coarse_agreement`)."""
+    overall, groups = coarse_agreement(pred, ref)
     lines = ["| coarse class | reference points | precision | recall |", "|---|---|---|---|"]
-    for k, name in enumerate(COARSE, start=1):
-        both = int(((cr == k) & (cp == k)).sum())
-        lines.append(f"| {name} | {int((cr == k).sum())} | "
-                     f"{100 * both / max(int((cp == k).sum()), 1):.1f} % | "
-                     f"{100 * both / max(int((cr == k).sum()), 1):.1f} % |")
-    lines.append(f"| **overall** | {int(keep.sum())} | | "
-                 f"**{100 * float((cp[keep] == cr[keep]).mean()):.1f} %** |")
+    for name, (precision, recall, n_ref) in groups.items():
+        lines.append(f"| {name} | {n_ref} | {100 * precision:.1f} % | {100 * recall:.1f} % |")
+    lines.append(f"| **overall** | {sum(g[2] for g in groups.values())} | | "
+                 f"**{100 * overall:.1f} %** |")
     return "\n".join(lines)
 
 

@@ -22,8 +22,7 @@ level sensor (z up, sensor at the origin) in these steps:
    no intensity.
 6. **A random forest** (:mod:`~semcal_ros.segmentation.forest`, arrays shipped in
    ``segmentation/data/point_labeller.npz``, trained by ``semcal_tools/train_point_labeller.py``
-   on synthetic scans of nine simulated lidars and one SemanticKITTI scan with views of it
-   resampled to other lidars) gives each voxel its
+   on synthetic scans of eight simulated lidars and one SemanticKITTI scan) gives each voxel its
    class shares; they are averaged over the voxel's ``smoothing_neighbours`` nearest voxels,
    and every point takes its voxel's most likely class.
 
