@@ -221,11 +221,11 @@ class FrameSet:
         """The mean of the frames' floors at ``pose`` (:meth:`Problem.floor`)."""
         return float(np.mean(self._each(Problem.floor, pose, stage)))
 
-    def freeze(self, pose: Pose) -> None:
+    def freeze(self, pose: Pose, stage: int | None = None) -> None:
         """Each frame's likelihood confusion held fixed at ``pose`` (``loss.em``, as
         :meth:`Problem.freeze`)."""
         for f in self.frames:
-            f.freeze(pose)
+            f.freeze(pose, stage)
 
     def thaw(self) -> None:
         for f in self.frames:

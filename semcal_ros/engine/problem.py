@@ -202,10 +202,12 @@ class Problem:
         (:meth:`~semcal_ros.engine.loss.LabelLoss.floor`): a loss's rise is judged above it."""
         return self.level(stage).loss.floor(self.render(pose, stage, threads))
 
-    def freeze(self, pose: Pose) -> None:
-        """Hold the likelihood's confusion matrix fixed at ``pose`` at every level (EM's E
-        step, ``loss.em``); other losses are unchanged."""
-        for lv in self._levels.values():
+    def freeze(self, pose: Pose, stage: int | None = None) -> None:
+        """Hold the likelihood's confusion matrix fixed at ``pose`` (EM's E step,
+        ``loss.em``) at the level of ``stage``, the only one a stage evaluates (None: every
+        level: one render each); other losses are unchanged."""
+        levels = self._levels.values() if stage is None else (self.level(stage),)
+        for lv in levels:
             lv.loss.freeze(render(self.pmap, lv.setup.view(pose)))
 
     def thaw(self) -> None:

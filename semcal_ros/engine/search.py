@@ -235,7 +235,7 @@ class Search:
             self.counter.begin_stage(f"{label}, stage {k + 1}/{len(stages)} "
                                      f"(1/{stages[k].scale} resolution)")
             if em:  # E step at the stage's start, then the stage minimises under it
-                self.problem.freeze(Pose.from_vector(center))
+                self.problem.freeze(Pose.from_vector(center), k)
             center, loss = self.nelder_mead(k, center, run)
             center, loss = self.restart(k, center, loss, run, label)
         if em:  # results are compared under the loss re-estimated at each pose
@@ -408,7 +408,7 @@ def _evidence(problem: Problem, search: Search, pose: Pose) -> Evidence | None:
         alone = Search(part, search.counter)
         alone.box = search.box
         if em:  # the part minimises what the last stage did: the loss held at its start
-            part.freeze(Pose.from_vector(start))
+            part.freeze(Pose.from_vector(start), last)
         vec, loss = alone.nelder_mead(last, start, 0, max_evaluations=qp.evidence_evaluations,
                                       simplex=qp.evidence_simplex)
         # the simplex never evaluates its centre: the result itself stays the part's answer
