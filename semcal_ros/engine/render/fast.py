@@ -281,14 +281,19 @@ def _render_zbufs(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c,
     return zbufs, vbufs
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
 def _render_zbuf_serial(coords, label, chunk_center, chunk_radius, r, t, intr, dist_c,
                         distorted, bounds, splat_lambda, lod_radius, radius_max, near, far,
                         offsets, linear, start, falloff, rim, width, height, model, limit,
                         values):
     """The whole render into one z-buffer on the calling thread, no thread pool: what several
     renders running side by side on their own threads call (a frame set's frames,
-    engine/frames.py), where one pool per render would fight the others for the cores."""
+    engine/frames.py, independent searches, engine/search.py), where one pool per render
+    would fight the others for the cores. Compiled with ``parallel=True`` though nothing in it
+    runs in parallel (numba finds no loop to split, so it uses no pool thread): numba's parallel
+    pipeline compiles the same loops 4-8x faster than its plain one (bench street 1 M, one
+    thread: 1/4 resolution 7.8 -> 1.0 ms, full resolution 21.5 -> 5.9 ms; the images identical),
+    the same code the pooled kernel runs per thread; why the plain pipeline loses is not known."""
     zbufs = np.empty((1, height * width), dtype=np.uint32)
     vbufs = np.empty((1, height * width if values.shape[0] > 0 else 1), dtype=np.uint8)
     _draw_chunks(zbufs[0], vbufs[0], values, 0, 1, coords, label, chunk_center, chunk_radius, r,
