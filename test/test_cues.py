@@ -124,8 +124,8 @@ def test_edge_term_is_lowest_at_the_outlines_and_joins_every_loss(world, target,
 
     def term(pose: Pose, stage: int = -1) -> float:
         problem.render(pose, stage)
-        assert problem._last is not None
-        return problem.level(stage).loss.edge.term(problem._last[1])
+        assert problem.last_render() is not None
+        return problem.level(stage).loss.edge.term(problem.last_render()[1])
 
     at_truth = term(GROUND_TRUTH)
     assert at_truth < 0.35  # most depth edges sit on an image edge

@@ -139,8 +139,8 @@ def test_nid_term_is_lowest_at_the_truth_and_joins_every_loss(bright_world, targ
 
     def term(pose: Pose, stage: int = -1) -> float:
         problem.render(pose, stage)
-        assert problem._last is not None and problem._last[2] is not None
-        return problem.level(stage).loss.intensity.term(problem._last[2])
+        assert problem.last_render() is not None and problem.last_render()[2] is not None
+        return problem.level(stage).loss.intensity.term(problem.last_render()[2])
 
     at_truth = term(GROUND_TRUTH)
     # the image is the map's intensity (binned by its own quantiles, so not bin for bin)
@@ -161,8 +161,8 @@ def test_nid_term_is_lowest_at_the_truth_and_joins_every_loss(bright_world, targ
                    replace(params, cues=CueParams(intensity_weight=WEIGHT, edge_weight=0.5)),
                    prepared=problem.pmap, image=intensity_image)
     both.render(pose)
-    assert both._last is not None
-    edge = both.level(-1).loss.edge.term(both._last[1])
+    assert both.last_render() is not None
+    edge = both.level(-1).loss.edge.term(both.last_render()[1])
     assert both.loss(pose) == pytest.approx(expected + 0.5 * edge, rel=1e-12)
 
 

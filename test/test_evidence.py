@@ -56,8 +56,8 @@ def test_the_jackknife_and_the_halves_formulas(problem):
     sqrt(3/4 x sum (x_i - mean)^2) = 3 cm; two frames 4 cm apart give |A - B| / 2 = 2 cm."""
     ends = iter([0.0, 0.0, 0.0, 0.04])
 
-    def refine(part, start):
-        return moved(dx=next(ends)).vector()
+    def refine(parts, start, apart):
+        return [moved(dx=next(ends)).vector() for _ in parts]
 
     ev = evidence_uncertainty(problem, GROUND_TRUTH, refine)
     assert ev.parts == 4 and ev.sigma[0] == pytest.approx(0.03, abs=1e-9)

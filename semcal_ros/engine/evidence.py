@@ -88,14 +88,20 @@ def independent_parts(problem: Any) -> tuple[str, list[list[Any]]]:
 
 
 def evidence_uncertainty(problem: Any, pose: Pose,
-                         refine: Callable[[Any, np.ndarray], np.ndarray]) -> Evidence:
+                         refine: Callable[[list[Any], np.ndarray, bool], list[np.ndarray]]
+                         ) -> Evidence:
     """Refine ``pose`` on each independent part of ``problem``'s evidence
-    (:func:`independent_parts`) and measure their spread (see the module docstring)."""
+    (:func:`independent_parts`) and measure their spread (see the module docstring).
+    ``refine(parts, start, apart)`` refines each part from ``start`` and gives their vectors in
+    the parts' order; ``apart``: the parts share nothing they change (a single frame's masked
+    copies, each with levels of its own), so they may run side by side; a frame set's parts
+    share their frames and the E steps those hold."""
     method, groups = independent_parts(problem)
+    apart = getattr(problem, "frames", None) is None
     variances, moves, parts = [], np.zeros(6), 0
     for group in groups:
-        thetas = np.array([axis_offsets(Pose.from_vector(refine(part, pose.vector())), pose)
-                           for part in group])
+        thetas = np.array([axis_offsets(Pose.from_vector(v), pose)
+                           for v in refine(group, pose.vector(), apart)])
         parts += len(group)
         moves = np.maximum(moves, np.max(np.abs(thetas), axis=0))
         n = len(thetas)

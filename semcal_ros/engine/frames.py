@@ -20,12 +20,9 @@ per cent per 25 cm. Two ways to give the search more:
 
 from __future__ import annotations
 
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Callable, Sequence, TypeVar
 
-import numba
 import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
@@ -34,6 +31,7 @@ from semcal_ros.engine.labels import INVALID, LabelMapping
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.problem import Evaluation, Problem
+from semcal_ros.engine.workers import side_by_side
 
 
 @dataclass(frozen=True)
@@ -58,21 +56,6 @@ class Frame:
 
 # --- several frames of one rig ---------------------------------------------------------------
 T = TypeVar("T")
-_POOL: ThreadPoolExecutor | None = None
-_POOL_LOCK = threading.Lock()
-
-
-def _frame_pool() -> ThreadPoolExecutor | None:
-    """The process's frame workers: one per numba thread, made on first use and shared by every
-    frame set (a calibrator runs one goal at a time); None with a single thread."""
-    global _POOL
-    workers = numba.get_num_threads()
-    if workers < 2:
-        return None
-    with _POOL_LOCK:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="semcal-frame")
-        return _POOL
 
 
 class StackedLoss:
@@ -190,15 +173,10 @@ class FrameSet:
         return self._levels[key]
 
     def _each(self, call: Callable[..., T], pose: Pose, stage: int) -> list[T]:
-        """``call(frame, pose, stage, threads)`` for every frame of the stage, in frame order.
-        With several frames and several cores the frames run side by side, each rendered on its
-        own worker thread (the renderer and the losses release the GIL), instead of one after
-        another, each on the renderer's pool."""
-        frames = self.searched(stage)
-        pool = _frame_pool() if len(frames) > 1 else None
-        if pool is None:
-            return [call(f, pose, stage, None) for f in frames]
-        return list(pool.map(lambda f: call(f, pose, stage, 1), frames))
+        """``call(frame, pose, stage)`` for every frame of the stage, in frame order: side by
+        side on the workers (engine/workers.py), each frame rendered on its worker's thread,
+        instead of one after another, each on the renderer's pool."""
+        return side_by_side(lambda f: call(f, pose, stage), self.searched(stage))
 
     def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
         """Every frame's render from ``pose``, stacked as :attr:`target` is."""

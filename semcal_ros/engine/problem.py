@@ -10,6 +10,7 @@ render and one table lookup per pixel.
 from __future__ import annotations
 
 import copy
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +24,7 @@ from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.pose import Pose
 from semcal_ros.engine.render import PreparedMap, ViewSetup, prepare_map, view_setup
 from semcal_ros.engine.render.fast import render, render_with_keys, render_with_values
+from semcal_ros.engine.workers import render_threads
 
 
 @dataclass(frozen=True)
@@ -105,8 +107,9 @@ class Problem:
         # the cues: the image's edge field and grey bins once per target; None = off (no cost)
         self.edges: np.ndarray | None = None
         self.grey: np.ndarray | None = None
-        # last render: labels, keys, intensity codes (None without the intensity cue)
-        self._last: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        # last render of this thread: labels, keys, intensity codes (None without the intensity
+        # cue), per thread: searches run side by side (engine/workers.py)
+        self._local = threading.local()
         cp = self.params.cues
         total = cp.edge_weight + cp.intensity_weight  # each term is in [0, 1]
         if total >= 0.5 * self.params.loss.degenerate_loss:
@@ -161,22 +164,29 @@ class Problem:
         """The z-buffer and intensity image of the render ``rendered`` came from, if it is this
         problem's last one (the same array, or an equal copy of it: a frame set's stack cuts
         copies)."""
-        if self._last is None:
+        last = self.last_render()
+        if last is None:
             return None
-        labels, keys, values = self._last
+        labels, keys, values = last
         if rendered is labels or (rendered.shape == labels.shape
                                   and np.array_equal(rendered, labels)):
             return keys, values
         return None
 
+    def last_render(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+        """This thread's last render with the cues on: labels, z-buffer keys, intensity codes
+        (None without the intensity cue); None before one (or with the cues off)."""
+        return getattr(self._local, "last", None)
+
     def level(self, stage: int = -1) -> Level:
         return self._levels[self.stages[stage].scale]
 
-    def render(self, pose: Pose, stage: int = -1, threads: int | None = None) -> np.ndarray:
-        """Aligned label image of the map from ``pose`` at the stage's resolution.
-        ``threads`` 1: rendered on the calling thread (a frame set renders its frames side by
-        side); default: the renderer's thread pool."""
+    def render(self, pose: Pose, stage: int = -1) -> np.ndarray:
+        """Aligned label image of the map from ``pose`` at the stage's resolution, on the
+        renderer's thread pool, or on the calling thread on a worker (engine/workers.py: the
+        frames of a rig and independent searches run side by side)."""
         lv = self.level(stage)
+        threads = render_threads()
         if self.edges is None and self.grey is None:
             return render(self.pmap, lv.setup.view(pose), threads)
         values = None
@@ -186,21 +196,21 @@ class Problem:
                                                       self.pmap.intensity, threads)
         else:
             labels, keys = render_with_keys(self.pmap, lv.setup.view(pose), threads)
-        self._last = (labels, keys, values)  # the cues' inputs, read by the level's CuedLoss
+        self._local.last = (labels, keys, values)  # the cues' inputs, read by its CuedLoss
         return labels
 
-    def evaluate(self, pose: Pose, stage: int = -1, threads: int | None = None) -> Evaluation:
-        loss, coverage = self.level(stage).loss.evaluate(self.render(pose, stage, threads))
+    def evaluate(self, pose: Pose, stage: int = -1) -> Evaluation:
+        loss, coverage = self.level(stage).loss.evaluate(self.render(pose, stage))
         return Evaluation(float(loss), float(coverage))
 
-    def loss(self, pose: Pose, stage: int = -1, threads: int | None = None) -> float:
+    def loss(self, pose: Pose, stage: int = -1) -> float:
         """The loss (``params.loss.kind``) at ``pose`` (``stage`` -1: full resolution)."""
-        return self.level(stage).loss(self.render(pose, stage, threads))
+        return self.level(stage).loss(self.render(pose, stage))
 
-    def floor(self, pose: Pose, stage: int = -1, threads: int | None = None) -> float:
+    def floor(self, pose: Pose, stage: int = -1) -> float:
         """The loss at ``pose`` if every pixel the map covers there drew its label's class
         (:meth:`~semcal_ros.engine.loss.LabelLoss.floor`): a loss's rise is judged above it."""
-        return self.level(stage).loss.floor(self.render(pose, stage, threads))
+        return self.level(stage).loss.floor(self.render(pose, stage))
 
     def freeze(self, pose: Pose, stage: int | None = None) -> None:
         """Hold the likelihood's confusion matrix fixed at ``pose`` (EM's E step,
@@ -208,7 +218,7 @@ class Problem:
         level: one render each); other losses are unchanged."""
         levels = self._levels.values() if stage is None else (self.level(stage),)
         for lv in levels:
-            lv.loss.freeze(render(self.pmap, lv.setup.view(pose)))
+            lv.loss.freeze(render(self.pmap, lv.setup.view(pose), render_threads()))
 
     def thaw(self) -> None:
         for lv in self._levels.values():
@@ -219,7 +229,7 @@ class Problem:
         (set to INVALID): the prepared map and the view set-ups are shared, only the targets and
         their loss tables are rebuilt."""
         other = copy.copy(self)
-        other._last = None
+        other._local = threading.local()
         other.target = np.where(ignore, INVALID, self.target).astype(np.uint8)
         other._levels = {scale: other._level(scale, level.setup)
                          for scale, level in self._levels.items()}

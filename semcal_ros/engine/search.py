@@ -17,6 +17,8 @@ the answer; docs/engine.md has the measurements behind each choice.
 
 from __future__ import annotations
 
+import copy
+import threading
 import time
 from typing import Callable
 
@@ -32,6 +34,7 @@ from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 from semcal_ros.engine.problem import Problem
 from semcal_ros.engine.quality import QualityParams, assess
 from semcal_ros.engine.results import CalibrationResult, Progress, RunResult
+from semcal_ros.engine.workers import side_by_side
 from semcal_ros.errors import CalibrationFailed, Cancelled, InputError  # Cancelled: raised here
 
 
@@ -40,7 +43,10 @@ class _Stalled(Exception):
 
 
 class EvaluationCounter:
-    """Counts evaluations, records history, reports progress, honours cancellation."""
+    """Counts evaluations, records history, reports progress, honours cancellation. Searches
+    run side by side each count on a :meth:`fork` (their own history, the progress through this
+    one), joined in a fixed order by :meth:`join`: the history does not depend on which thread
+    ran first."""
 
     def __init__(self, progress: Callable[[Progress], None] | None,
                  should_stop: Callable[[], bool] | None, interval: float = 0.25) -> None:
@@ -50,6 +56,22 @@ class EvaluationCounter:
         self.stage = "start"
         self._best: tuple[float, Pose] | None = None
         self._last_report = 0.0
+        self._parent: EvaluationCounter | None = None
+        self._forked = 0  # evaluations of forks not yet joined (for the progress reports)
+        self._lock = threading.Lock()
+
+    def fork(self) -> "EvaluationCounter":
+        child = EvaluationCounter(None, self.should_stop, self.interval)
+        child._parent = self
+        return child
+
+    def join(self, forks: list["EvaluationCounter"]) -> None:
+        """Take the forks' evaluations and history, in the order given."""
+        with self._lock:
+            for f in forks:
+                self.evaluations += f.evaluations
+                self._forked -= f.evaluations
+                self.history.extend(f.history)
 
     def check(self) -> None:
         """Raise :class:`Cancelled` when the caller asked to stop."""
@@ -57,23 +79,34 @@ class EvaluationCounter:
             raise Cancelled("calibration cancelled")
 
     def begin_stage(self, name: str) -> None:
-        self.stage, self._best = name, None
+        if self._parent is None:  # a fork's stages are its parent's to name
+            self.stage, self._best = name, None
 
     def record(self, run: int, stage: int, loss: float, pose: Pose) -> None:
         self.check()
-        self.evaluations += 1
         self.history.append((run, stage, loss))
-        if self._best is None or loss < self._best[0]:
-            self._best = (loss, pose)
-        now = time.monotonic()
-        if now - self._last_report >= self.interval:
+        if self._parent is None:
+            self._observe(loss, pose, 1, 0)
+        else:
+            self.evaluations += 1
+            self._parent._observe(loss, pose, 0, 1)
+
+    def _observe(self, loss: float, pose: Pose, own: int, forked: int) -> None:
+        with self._lock:
+            self.evaluations += own
+            self._forked += forked
+            if self._best is None or loss < self._best[0]:
+                self._best = (loss, pose)
+            now = time.monotonic()
+            if now - self._last_report < self.interval:
+                return
             self._last_report = now
-            self.report()
+        self.report()
 
     def report(self) -> None:
         if self.progress is not None and self._best is not None:
-            self.progress(Progress(self.stage, self.evaluations, float(self._best[0]),
-                                   self._best[1]))
+            self.progress(Progress(self.stage, self.evaluations + self._forked,
+                                   float(self._best[0]), self._best[1]))
 
 
 class Search:
@@ -93,6 +126,13 @@ class Search:
         # > 0: the loss plus this x the share of the labels' scene the map leaves uncovered (the
         # yaw search: near-empty views otherwise score a loss near 0); see score()
         self.coverage_weight = 0.0
+
+    def forked(self) -> "Search":
+        """This search (problem, bounds, weights) counting on a fork of its counter: one of
+        several run side by side (engine/workers.py)."""
+        other = copy.copy(self)
+        other.counter = self.counter.fork()
+        return other
 
     def confine(self, initial: Pose, factor: float = 1.0, yaw: bool = True) -> None:
         """Keep the search within ``factor`` x the bounds of ``initial`` on every free axis
@@ -404,9 +444,8 @@ def _evidence(problem: Problem, search: Search, pose: Pose) -> Evidence | None:
 
     em = problem.params.loss.em
 
-    def refine(part: Problem, start: np.ndarray) -> np.ndarray:
-        alone = Search(part, search.counter)
-        alone.box = search.box
+    def refine(part: Problem, start: np.ndarray, alone: Search) -> np.ndarray:
+        alone.problem = part
         if em:  # the part minimises what the last stage did: the loss held at its start
             part.freeze(Pose.from_vector(start), last)
         vec, loss = alone.nelder_mead(last, start, 0, max_evaluations=qp.evidence_evaluations,
@@ -418,8 +457,18 @@ def _evidence(problem: Problem, search: Search, pose: Pose) -> Evidence | None:
             part.thaw()
         return vec if better else start
 
+    def refine_parts(parts: list[Problem], start: np.ndarray, apart: bool) -> list[np.ndarray]:
+        forks = [search.forked() for _ in parts]
+        jobs = list(zip(parts, forks))
+        if apart:  # side by side on the workers, each counting on a fork
+            vectors = side_by_side(lambda job: refine(job[0], start, job[1]), jobs)
+        else:
+            vectors = [refine(part, start, fork) for part, fork in jobs]
+        search.counter.join([f.counter for f in forks])
+        return vectors
+
     search.counter.begin_stage("uncertainty from independent evidence")
-    return evidence_uncertainty(problem, pose, refine)
+    return evidence_uncertainty(problem, pose, refine_parts)
 
 
 def solve(problem: Problem, initial: Pose, seed: int | None = None,
@@ -452,12 +501,18 @@ def solve(problem: Problem, initial: Pose, seed: int | None = None,
         starts.append(search.pose_at(centre.vector(), rng.uniform(-1.0, 1.0, len(search.free))
                                      * min(vp.noise, 1.0)))
     n = len(starts)
-    coarse = []
-    for i, start in enumerate(starts):
-        label = "initial guess" if i == 0 else f"start {i + 1}/{n}"
-        e0 = counter.evaluations
-        vec, loss = search.coarse(start, i, label)
-        coarse.append((Pose.from_vector(vec), loss, counter.evaluations - e0))
+    # the starts' coarse stages do not depend on each other: side by side on the workers, each
+    # counting on a fork (the same results and history as one after another)
+    counter.begin_stage(f"{n} starts, stage 1/{len(problem.stages)} "
+                        f"(1/{problem.stages[0].scale} resolution)")
+    forks = [search.forked() for _ in starts]
+
+    def first_stage(i: int) -> tuple[Pose, float, int]:
+        vec, loss = forks[i].nelder_mead(0, starts[i].vector(), i)
+        return Pose.from_vector(vec), loss, forks[i].counter.evaluations
+
+    coarse = side_by_side(first_stage, range(n))
+    counter.join([f.counter for f in forks])
     basin, heads = _basins([c[0] for c in coarse], [c[1] for c in coarse],
                            vp.merge_translation_m, vp.merge_rotation_deg)
     limit = coarse[heads[0]][1] * (1.0 + vp.refine_margin) + vp.loss_margin_abs
