@@ -26,6 +26,7 @@ from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.engine.loss import LOSS_KINDS
 from semcal_ros.engine.params import CalibrationParams
 from semcal_ros.engine.problem import Problem
+from semcal_ros.engine.render.fast import render
 from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world_of_size
 
 
@@ -50,7 +51,8 @@ def compile_engine() -> None:
                                       probabilities=probs)
                     for stage in range(len(problem.stages)):
                         problem.loss(GROUND_TRUTH, stage)
-                        problem.loss(GROUND_TRUTH, stage, threads=1)  # a frame set's frames
+                        # the render on the calling thread (engine/workers.py)
+                        render(problem.pmap, problem.level(stage).setup.view(GROUND_TRUTH), 1)
 
 
 def compile_segmentation() -> None:

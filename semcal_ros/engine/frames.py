@@ -214,6 +214,10 @@ class FrameSet:
         return FrameSet([f.masked(ignore[top:top + h, :w])
                          for f, (top, h, w) in zip(self.frames, self.rows)])
 
+    def detached(self) -> "FrameSet":
+        """The same frames, each with loss objects of its own (:meth:`Problem.detached`)."""
+        return FrameSet([f.detached() for f in self.frames])
+
     def degenerate(self, evaluation: Evaluation) -> bool:
         """True when the frames together show (almost) none of their maps: never a result."""
         lp = self.params.loss

@@ -131,6 +131,9 @@ class Problem:
                                  "again with semcal real-scene or semcal build-map)")
             self.grey = grey_bins(image, cp.intensity_bins, self.target.shape)
         self.stages = self.params.schedule.stages()
+        # the probabilities at each level's resolution: 44 MB at full resolution, shared with
+        # the masked and detached copies (the evidence's parts, basins side by side)
+        self._sampled: dict[int, np.ndarray] = {}
         self._levels: dict[int, Level] = {}
         for stage in self.stages:
             if stage.scale not in self._levels:
@@ -142,8 +145,12 @@ class Problem:
         cam = setup.camera
         off = scale // 2  # the sample nearest the centre of each scale x scale block
         target = self.target[off::scale, off::scale][:cam.height, :cam.width]
-        probs = (None if self.probabilities is None else np.ascontiguousarray(
-            self.probabilities[off::scale, off::scale][:cam.height, :cam.width]))
+        probs = None
+        if self.probabilities is not None:  # sampled once per scale, shared by the copies
+            probs = self._sampled.get(scale)
+            if probs is None or probs.shape[:2] != target.shape:
+                probs = self._sampled[scale] = np.ascontiguousarray(
+                    self.probabilities[off::scale, off::scale][:cam.height, :cam.width])
         loss = LabelLoss(np.ascontiguousarray(target), self.params.loss, scale, probs)
         if self.edges is None and self.grey is None:
             return Level(scale, setup, loss)
@@ -234,6 +241,12 @@ class Problem:
         other._levels = {scale: other._level(scale, level.setup)
                          for scale, level in self._levels.items()}
         return other
+
+    def detached(self) -> "Problem":
+        """The same problem with loss objects of its own (the prepared map and the view set-ups
+        shared): a search run side by side with others holds its E step (:meth:`freeze`) there
+        without touching theirs."""
+        return self.masked(np.zeros(self.target.shape, dtype=bool))
 
     def degenerate(self, evaluation: Evaluation) -> bool:
         """True for a view that shows (almost) none of the map: never a result."""

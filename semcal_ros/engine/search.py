@@ -389,13 +389,24 @@ def _refined(problem: Problem, search: Search, basins: list[tuple[int, Pose, flo
     n = len(basins)
     n_final = n if vp.refine_final == 0 else min(vp.refine_final, n)
     through = last if n_final == n else last - 1
-    spent: dict[int, int] = {}
-    part: dict[int, tuple[np.ndarray, float]] = {}
     labels = {i: f"refining basin {j + 1}/{n}" for j, (i, _, _) in enumerate(basins)}
-    for i, pose, loss in basins:
-        e0 = counter.evaluations
-        part[i] = search.refine(pose.vector(), loss, i, labels[i], last=through)
-        spent[i] = counter.evaluations - e0
+    # the basins' stages up to ``through`` do not depend on each other: side by side on the
+    # workers, each on a fork of the search and, with several, a detached copy of the problem
+    # (each holds its own E step)
+    forks = [search.forked() for _ in basins]
+    if n > 1:
+        for fork in forks:
+            fork.problem = problem.detached()
+
+    def through_stage(k: int) -> tuple[np.ndarray, float]:
+        i, pose, loss = basins[k]
+        return forks[k].refine(pose.vector(), loss, i, labels[i], last=through)
+
+    counter.begin_stage(f"refining {n} basin{'s' if n > 1 else ''}")
+    refined = side_by_side(through_stage, range(n))
+    counter.join([f.counter for f in forks])
+    part = {i: refined[k] for k, (i, _, _) in enumerate(basins)}
+    spent = {i: forks[k].counter.evaluations for k, (i, _, _) in enumerate(basins)}
     done: dict[int, tuple[Pose, float, int]] = {}
 
     def finish(i: int) -> None:
