@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import numba
 import pytest
 import yaml
 
@@ -42,7 +43,9 @@ def test_cancel_stops_promptly(world, target):
 
     with pytest.raises(Cancelled):
         calibrate(world, target, camera(), INITIAL, should_stop=should_stop)
-    assert len(calls) == 21
+    # the check before each evaluation: the 21st says stop; a search running beside it on
+    # another core (engine/workers.py) stops at its own next check, and no start begins after
+    assert 21 <= len(calls) <= 20 + max(1, numba.get_num_threads())
 
 
 def test_absurd_initial_guess_is_rejected(world, target):

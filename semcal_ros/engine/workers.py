@@ -16,7 +16,7 @@ itself.
 from __future__ import annotations
 
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from typing import Callable, Iterable, TypeVar
 
 import numba
@@ -53,25 +53,38 @@ def render_threads() -> int | None:
     return 1 if on_worker() else None
 
 
-def _marked(call: Callable[[T], R]) -> Callable[[T], R]:
-    def run(item: T) -> R:
-        _LOCAL.inside = True
-        try:
-            return call(item)
-        finally:
-            _LOCAL.inside = False
-    return run
-
-
 def side_by_side(call: Callable[[T], R], items: Iterable[T]) -> list[R]:
     """``call(item)`` for every item, the results in the items' order: on the workers when
     there are several items and several cores and this is not already a worker, else one after
-    another here. The calls must not share state they change."""
+    another here. The calls must not share state they change. When one raises (a cancelled
+    goal: :class:`~semcal_ros.errors.Cancelled`), the items not yet begun are not begun, the
+    running ones are waited for (each stops at its next check), and the first exception in
+    the items' order is raised: nothing of the call runs on after it returns."""
     items = list(items)
     pool = None if len(items) < 2 or on_worker() else _pool()
     if pool is None:
         return [call(item) for item in items]
-    return list(pool.map(_marked(call), items))
+    failed = threading.Event()
+
+    def run(item: T) -> R | None:
+        if failed.is_set():
+            return None
+        _LOCAL.inside = True
+        try:
+            return call(item)
+        except BaseException:
+            failed.set()
+            raise
+        finally:
+            _LOCAL.inside = False
+
+    futures = [pool.submit(run, item) for item in items]
+    wait(futures)
+    for f in futures:
+        error = f.exception()
+        if error is not None:
+            raise error
+    return [f.result() for f in futures]  # type: ignore[misc]  # none skipped: none failed
 
 
 __all__ = ["on_worker", "render_threads", "side_by_side"]
