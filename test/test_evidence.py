@@ -55,8 +55,10 @@ def test_the_jackknife_and_the_halves_formulas(problem):
     """Four parts that end 0, 0, 0 and 4 cm along x: the jackknife's sigma is
     sqrt(3/4 x sum (x_i - mean)^2) = 3 cm; two frames 4 cm apart give |A - B| / 2 = 2 cm."""
     ends = iter([0.0, 0.0, 0.0, 0.04])
+    shared_flags = []
 
-    def refine(parts, start, apart):
+    def refine(parts, start, shared):
+        shared_flags.append(shared)
         return [moved(dx=next(ends)).vector() for _ in parts]
 
     ev = evidence_uncertainty(problem, GROUND_TRUTH, refine)
@@ -65,6 +67,8 @@ def test_the_jackknife_and_the_halves_formulas(problem):
     ends = iter([0.0, 0.04])
     ev = evidence_uncertainty(FrameSet([problem] * 2), GROUND_TRUTH, refine)
     assert ev.sigma[0] == pytest.approx(0.02, abs=1e-9)
+    # a single frame's strips are copies of their own; a frame set's parts are its own frames
+    assert shared_flags == [False, True]
 
 
 def test_axis_offsets_wrap_the_angles():

@@ -7,6 +7,8 @@ import numba
 import numpy as np
 
 from semcal_ros.engine import workers
+from semcal_ros.engine.frames import FrameSet
+from semcal_ros.engine.params import CalibrationParams, VerificationParams
 from semcal_ros.engine.problem import Problem
 from semcal_ros.engine.search import solve
 from semcal_tools.synthetic import PERTURBED_START, camera
@@ -48,3 +50,25 @@ def test_a_calibration_side_by_side_ends_where_one_step_after_another_does(world
     assert side.evaluations == in_turn.evaluations and side.history == in_turn.history
     assert side.quality.evidence_sigma == in_turn.quality.evidence_sigma
     assert side.quality.verdict == in_turn.quality.verdict
+
+
+def test_a_frame_set_side_by_side_ends_where_one_step_after_another_does(world, target):
+    """Two frames: the evidence's parts (each frame alone) are the set's own frames, share one
+    E step taken for both, and run side by side; the same answer as in turn."""
+    params = CalibrationParams(verification=VerificationParams(starts=1))
+
+    def rig() -> FrameSet:
+        return FrameSet([Problem(world, target, camera(), PERTURBED_START.translation, params)
+                         for _ in range(2)])
+
+    side = solve(rig(), PERTURBED_START, seed=0)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        in_turn = solve(rig(), PERTURBED_START, seed=0)
+    finally:
+        numba.set_num_threads(threads)
+    assert side.quality.uncertainty_method == "each of 2 frames alone"
+    assert np.array_equal(side.pose.vector(), in_turn.pose.vector())
+    assert side.history == in_turn.history
+    assert side.quality.evidence_sigma == in_turn.quality.evidence_sigma

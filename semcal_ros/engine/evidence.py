@@ -92,16 +92,16 @@ def evidence_uncertainty(problem: Any, pose: Pose,
                          ) -> Evidence:
     """Refine ``pose`` on each independent part of ``problem``'s evidence
     (:func:`independent_parts`) and measure their spread (see the module docstring).
-    ``refine(parts, start, apart)`` refines each part from ``start`` and gives their vectors in
-    the parts' order; ``apart``: the parts share nothing they change (a single frame's masked
-    copies, each with levels of its own), so they may run side by side; a frame set's parts
-    share their frames and the E steps those hold."""
+    ``refine(parts, start, shared)`` refines each part from ``start`` and gives their vectors
+    in the parts' order; ``shared``: the parts are made of ``problem``'s own frames (a frame
+    set's), so whatever a part holds in a frame (the E step) it holds for every part; else each
+    part is a copy with loss objects of its own (a single frame's masked strips)."""
     method, groups = independent_parts(problem)
-    apart = getattr(problem, "frames", None) is None
+    shared = getattr(problem, "frames", None) is not None
     variances, moves, parts = [], np.zeros(6), 0
     for group in groups:
         thetas = np.array([axis_offsets(Pose.from_vector(v), pose)
-                           for v in refine(group, pose.vector(), apart)])
+                           for v in refine(group, pose.vector(), shared)])
         parts += len(group)
         moves = np.maximum(moves, np.max(np.abs(thetas), axis=0))
         n = len(thetas)

@@ -455,26 +455,32 @@ def _evidence(problem: Problem, search: Search, pose: Pose) -> Evidence | None:
 
     em = problem.params.loss.em
 
-    def refine(part: Problem, start: np.ndarray, alone: Search) -> np.ndarray:
+    def refine(part: Problem, start: np.ndarray, alone: Search, hold: bool) -> np.ndarray:
         alone.problem = part
-        if em:  # the part minimises what the last stage did: the loss held at its start
+        if hold:  # the part minimises what the last stage did: the loss held at its start
             part.freeze(Pose.from_vector(start), last)
         vec, loss = alone.nelder_mead(last, start, 0, max_evaluations=qp.evidence_evaluations,
                                       simplex=qp.evidence_simplex)
         # the simplex never evaluates its centre: the result itself stays the part's answer
         # unless a vertex beat it
         better = loss < alone.score(Pose.from_vector(start), last)
-        if em:
+        if hold:
             part.thaw()
         return vec if better else start
 
-    def refine_parts(parts: list[Problem], start: np.ndarray, apart: bool) -> list[np.ndarray]:
+    def refine_parts(parts: list[Problem], start: np.ndarray, shared: bool) -> list[np.ndarray]:
+        # side by side on the workers, each counting on a fork. Parts made of the problem's own
+        # frames would each take the same E step (a frame's, at the same pose): taken once here
+        # for every frame, held while they run, instead of by each part in turn
         forks = [search.forked() for _ in parts]
-        jobs = list(zip(parts, forks))
-        if apart:  # side by side on the workers, each counting on a fork
-            vectors = side_by_side(lambda job: refine(job[0], start, job[1]), jobs)
-        else:
-            vectors = [refine(part, start, fork) for part, fork in jobs]
+        if em and shared:
+            problem.freeze(Pose.from_vector(start), last)
+        try:
+            vectors = side_by_side(lambda job: refine(job[0], start, job[1], em and not shared),
+                                   list(zip(parts, forks)))
+        finally:
+            if em and shared:
+                problem.thaw()
         search.counter.join([f.counter for f in forks])
         return vectors
 

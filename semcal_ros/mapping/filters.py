@@ -68,6 +68,22 @@ def range_filter(cloud: LabelledCloud, d_max: float, d_min: float = 0.0) -> Labe
     return cloud if keep.all() else cloud.select(keep)
 
 
+_NO_LABEL = np.zeros(0, np.uint16)  # an unlabelled cloud's label argument of the kernel
+
+
+def _float_extras(extra: Mapping[str, np.ndarray], n: int) -> tuple[list[str], np.ndarray]:
+    """The float fields the voxel grid averages (names, (n, E) columns). A single field (a
+    map's intensity) is passed as it is, a view: stacking it into float64 cost a quarter of the
+    voxel grid of a merged cloud; the kernel sums it in float64 either way."""
+    names = [name for name, values in extra.items()
+             if values.ndim == 1 and np.issubdtype(values.dtype, np.floating)]
+    if not names:
+        return names, np.zeros((n, 0))
+    if len(names) == 1 and extra[names[0]].dtype in (np.float32, np.float64):
+        return names, np.ascontiguousarray(extra[names[0]]).reshape(n, 1)
+    return names, np.stack([extra[k].astype(np.float64) for k in names], axis=1)
+
+
 def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
     """One point per occupied voxel, with the voxel's majority label (the map's voxel grid).
 
@@ -88,19 +104,16 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
         raise ValueError(f"voxel grid too large for {voxel} m cells; "
                          "points far apart or a tiny voxel size")
     if cloud.label is None:
-        classes, class_index = np.zeros(1, np.int64), np.zeros(n, np.int64)
-    else:  # class ids -> 0..k-1 through a table
-        present = np.bincount(cloud.label, minlength=1)
+        label, classes, table = _NO_LABEL, np.zeros(1, np.int64), np.zeros(1, np.int64)
+    else:  # class ids -> 0..k-1 through a table, looked up in the kernel
+        label = cloud.label
+        present = np.bincount(label, minlength=1)
         classes = np.flatnonzero(present)
         table = np.zeros(len(present), np.int64)
         table[classes] = np.arange(len(classes))
-        class_index = table[cloud.label]
-    names = [name for name, values in cloud.extra.items()
-             if values.ndim == 1 and np.issubdtype(values.dtype, np.floating)]
-    extra = (np.stack([cloud.extra[k].astype(np.float64) for k in names], axis=1) if names
-             else np.zeros((n, 0)))
+    names, extra = _float_extras(cloud.extra, n)
     points, best, means = kernels.voxel_majority(
-        np.ascontiguousarray(xyz), xyz.dtype.type(voxel), class_index, len(classes),
+        np.ascontiguousarray(xyz), xyz.dtype.type(voxel), label, table, len(classes),
         classes != UNLABELED if cloud.label is not None else np.ones(1, np.bool_), extra)
     label = None if cloud.label is None else classes[best].astype(np.uint16)
     return LabelledCloud(points, label, {k: means[:, j].astype(cloud.extra[k].dtype)

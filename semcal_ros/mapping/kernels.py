@@ -111,66 +111,79 @@ def _hash(key: np.int64, mask: np.int64) -> np.int64:
 
 
 @nb.njit(cache=True, nogil=True)
-def _tile_order(xyz: np.ndarray, voxel, tile_cells: int) -> tuple[np.ndarray, np.ndarray]:
-    """Point indices grouped by horizontal tiles of ``tile_cells`` voxels (a counting sort) and
-    the tiles' start offsets; one tile when the tile grid would be larger than the cloud."""
+def _keys_by_tile(xyz: np.ndarray, voxel, tile_cells: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's voxel key (cells packed 21 bits per axis), the point indices grouped by
+    horizontal tiles of ``tile_cells`` voxels (a stable counting sort) and the tiles' start
+    offsets; one tile when the tile grid would be larger than the cloud. The cells are computed
+    here once: the hash pass reads the keys instead of dividing every coordinate again."""
     n = xyz.shape[0]
-    tx = np.empty(n, np.int64)
+    keys = np.empty(n, np.int64)
+    tile = np.empty(n, np.int64)
     ty = np.empty(n, np.int64)
     for i in range(n):
-        tx[i] = np.int64(np.floor(xyz[i, 0] / voxel)) // tile_cells
-        ty[i] = np.int64(np.floor(xyz[i, 1] / voxel)) // tile_cells
-    x0, x1, y0, y1 = tx.min(), tx.max(), ty.min(), ty.max()
+        cx = np.int64(np.floor(xyz[i, 0] / voxel))
+        cy = np.int64(np.floor(xyz[i, 1] / voxel))
+        cz = np.int64(np.floor(xyz[i, 2] / voxel))
+        keys[i] = ((cx & 0x1FFFFF) << 42) | ((cy & 0x1FFFFF) << 21) | (cz & 0x1FFFFF)
+        tile[i] = cx // tile_cells
+        ty[i] = cy // tile_cells
+    x0, x1, y0, y1 = tile.min(), tile.max(), ty.min(), ty.max()
     nx, ny = x1 - x0 + 1, y1 - y0 + 1
     if nx * ny > 2 * n + 1024:  # sparse and far apart: one tile
         starts = np.zeros(2, np.int64)
         starts[1] = n
-        return np.arange(n), starts
+        return keys, np.arange(n), starts
     counts = np.zeros(nx * ny + 1, np.int64)
     for i in range(n):
-        tx[i] = (tx[i] - x0) * ny + (ty[i] - y0)
-        counts[tx[i] + 1] += 1
+        tile[i] = (tile[i] - x0) * ny + (ty[i] - y0)
+        counts[tile[i] + 1] += 1
     starts = np.cumsum(counts)
     fill = starts[:-1].copy()
     perm = np.empty(n, np.int64)
     for i in range(n):
-        perm[fill[tx[i]]] = i
-        fill[tx[i]] += 1
-    return perm, starts
+        perm[fill[tile[i]]] = i
+        fill[tile[i]] += 1
+    return keys, perm, starts
 
 
 @nb.njit(cache=True, nogil=True)
-def voxel_majority(xyz: np.ndarray, voxel, class_index: np.ndarray, n_classes: int,
-                   labelled: np.ndarray, extra: np.ndarray, tile_cells: int = 64
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def voxel_majority(xyz: np.ndarray, voxel, label: np.ndarray, table: np.ndarray,
+                   n_classes: int, labelled: np.ndarray, extra: np.ndarray,
+                   tile_cells: int = 64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One point per occupied voxel: the centroid of its winning class's points.
 
     ``voxel`` has the points' precision (float32 points are binned as float32 numbers);
-    ``class_index`` (N,) int64 0..n_classes-1 (classes in ascending id order), ``labelled``
-    (n_classes,) bool: False for ``unlabeled``, which only wins a voxel nobody else is in; then
-    the most points win, ties to the smaller id (filters.voxel_downsample's rule). ``extra``
-    (N, E) float64 columns averaged over the same points. Returns (points (V, 3) float64,
-    class index (V,), extras (V, E)), voxels tile by tile.
+    ``label`` (N,) the points' class ids (empty: one class), ``table`` class id -> class index
+    0..n_classes-1 (classes in ascending id order), ``labelled`` (n_classes,) bool: False for
+    ``unlabeled``, which only wins a voxel nobody else is in; then the most points win, ties to
+    the smaller id (filters.voxel_downsample's rule). ``extra`` (N, E) float columns (a scan's
+    float32 intensity as it is: no float64 copy) averaged in float64 over the same points.
+    Returns (points (V, 3) float64, class index (V,), extras (V, E) float64), voxels tile by
+    tile.
 
     Points are taken tile by tile (``tile_cells`` voxels square, a counting sort), each tile
-    through an open-addressing hash table of its own size (key and first entry side by side),
-    so the table stays in the cache: a merged cloud of a million points costs a third of what
-    one table for all of it did. Each voxel keeps a short chain of (class, count, sums)
-    entries; nothing is sorted.
+    through an open-addressing hash table of its own size, so the table stays in the cache: a
+    merged cloud of a million points costs a third of what one table for all of it did. Each
+    voxel keeps a short chain of (class, count, sums) entries; nothing is sorted.
     """
     n = xyz.shape[0]
     n_extra = extra.shape[1]
-    perm, starts = _tile_order(xyz, voxel, tile_cells)
+    width = 4 + n_extra
+    has_label = label.shape[0] == n
+    keys, perm, starts = _keys_by_tile(xyz, voxel, tile_cells)
     biggest = 0
     for t in range(starts.shape[0] - 1):
         biggest = max(biggest, starts[t + 1] - starts[t])
     size = 1
     while size < 2 * biggest + 2:
         size *= 2
-    table = np.empty((size, 2), np.int64)  # [voxel key, newest entry of the voxel]
+    slot_key = np.empty(size, np.int64)  # the tile's hash table: voxel key ...
+    slot_head = np.empty(size, np.int64)  # ... and the voxel's newest entry
     order = np.empty(n, np.int64)  # slot of each voxel of the tile, in order of appearance
-    links = np.empty((n, 2), np.int64)  # per entry [class, next entry of the same voxel]
-    sums = np.empty((n, 4 + n_extra))  # per entry [count, x, y, z, extras...]
+    entry_class = np.empty(n, np.int64)  # per entry: its class and the next entry of the voxel
+    entry_next = np.empty(n, np.int64)
+    sums = np.empty((n, width))  # per entry [count, x, y, z, extras...]
     points = np.empty((n, 3))
     best = np.empty(n, np.int64)
     extras = np.empty((n, n_extra))
@@ -183,35 +196,31 @@ def voxel_majority(xyz: np.ndarray, voxel, class_index: np.ndarray, n_classes: i
         while tsize < 2 * (hi - lo) + 2:
             tsize *= 2
         mask = np.int64(tsize - 1)
-        for h in range(tsize):
-            table[h, 0] = _EMPTY
+        slot_key[:tsize] = _EMPTY
         first = n_vox
         n_entry = 0
         for j in range(lo, hi):
             i = perm[j]
-            cx = np.int64(np.floor(xyz[i, 0] / voxel))
-            cy = np.int64(np.floor(xyz[i, 1] / voxel))
-            cz = np.int64(np.floor(xyz[i, 2] / voxel))
-            key = ((cx & 0x1FFFFF) << 42) | ((cy & 0x1FFFFF) << 21) | (cz & 0x1FFFFF)
+            key = keys[i]
             h = _hash(key, mask)
-            while table[h, 0] != _EMPTY and table[h, 0] != key:
+            while slot_key[h] != _EMPTY and slot_key[h] != key:
                 h = (h + 1) & mask
-            c = class_index[i]
-            if table[h, 0] == _EMPTY:
-                table[h, 0] = key
-                table[h, 1] = _EMPTY
+            c = table[label[i]] if has_label else 0
+            if slot_key[h] == _EMPTY:
+                slot_key[h] = key
+                slot_head[h] = _EMPTY
                 order[n_vox] = h
                 n_vox += 1
-            e = table[h, 1]
-            while e >= 0 and links[e, 0] != c:
-                e = links[e, 1]
+            e = slot_head[h]
+            while e >= 0 and entry_class[e] != c:
+                e = entry_next[e]
             if e < 0:
                 e = lo + n_entry  # entries of this tile live in [lo, hi)
                 n_entry += 1
-                links[e, 0] = c
-                links[e, 1] = table[h, 1]
-                table[h, 1] = e
-                for k in range(4 + n_extra):
+                entry_class[e] = c
+                entry_next[e] = slot_head[h]
+                slot_head[h] = e
+                for k in range(width):
                     sums[e, k] = 0.0
             sums[e, 0] += 1.0
             sums[e, 1] += xyz[i, 0]
@@ -221,13 +230,13 @@ def voxel_majority(xyz: np.ndarray, voxel, class_index: np.ndarray, n_classes: i
                 sums[e, 4 + k] += extra[i, k]
         for v in range(first, n_vox):  # the tile's voxels, before its table is reused
             top, top_score, top_class = -1, -1.0, n_classes
-            e = table[order[v], 1]
+            e = slot_head[order[v]]
             while e >= 0:
-                c = links[e, 0]
+                c = entry_class[e]
                 score = sums[e, 0] + (n + 1.0) * labelled[c]
                 if score > top_score or (score == top_score and c < top_class):
                     top, top_score, top_class = e, score, c
-                e = links[e, 1]
+                e = entry_next[e]
             k = sums[top, 0]
             best[v] = top_class
             points[v, 0] = sums[top, 1] / k
