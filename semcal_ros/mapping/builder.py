@@ -526,7 +526,10 @@ class ScanInput:
 def build_map(scans: Iterable[ScanInput], params: MapBuildParams | None = None,
               lidar_extrinsic: np.ndarray | None = None, mapping: LabelMapping | None = None,
               progress: bool = False) -> MapBuildResult:
-    """Build a map from scans (sorted by time here); bad scans are skipped and reported."""
+    """Build a map from scans (sorted by time here); bad scans are skipped and reported.
+
+    Loaders (``ScanInput.cloud`` callables) run in ``PREPARE_WORKERS`` threads, two scans at a
+    time: each must read its own scan (a file per scan is)."""
     from tqdm import tqdm
 
     t0 = time.perf_counter()

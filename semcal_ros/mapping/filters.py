@@ -104,16 +104,16 @@ def voxel_downsample(cloud: LabelledCloud, voxel: float) -> LabelledCloud:
         raise ValueError(f"voxel grid too large for {voxel} m cells; "
                          "points far apart or a tiny voxel size")
     if cloud.label is None:
-        label, classes, table = _NO_LABEL, np.zeros(1, np.int64), np.zeros(1, np.int64)
+        ids, classes, table = _NO_LABEL, np.zeros(1, np.int64), np.zeros(1, np.int64)
     else:  # class ids -> 0..k-1 through a table, looked up in the kernel
-        label = cloud.label
-        present = np.bincount(label, minlength=1)
+        ids = cloud.label
+        present = np.bincount(ids, minlength=1)
         classes = np.flatnonzero(present)
         table = np.zeros(len(present), np.int64)
         table[classes] = np.arange(len(classes))
     names, extra = _float_extras(cloud.extra, n)
     points, best, means = kernels.voxel_majority(
-        np.ascontiguousarray(xyz), xyz.dtype.type(voxel), label, table, len(classes),
+        np.ascontiguousarray(xyz), xyz.dtype.type(voxel), ids, table, len(classes),
         classes != UNLABELED if cloud.label is not None else np.ones(1, np.bool_), extra)
     label = None if cloud.label is None else classes[best].astype(np.uint16)
     return LabelledCloud(points, label, {k: means[:, j].astype(cloud.extra[k].dtype)
