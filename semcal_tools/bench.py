@@ -133,11 +133,12 @@ def paper_params() -> CalibrationParams:
         verification=replace(d.verification, starts=0))
 
 
-def paper_run(world, target: np.ndarray, cam, start: Pose) -> tuple[Pose, int, float]:
+def paper_run(world, target: np.ndarray, cam, start: Pose, mapping=None
+              ) -> tuple[Pose, int, float]:
     """One plain paper run (no verification starts, no quality report): pose, evaluations and
     seconds, the map prepared inside as :func:`calibrate` does."""
     t0 = time.perf_counter()
-    problem = Problem(world, target, cam, start.translation, paper_params())
+    problem = Problem(world, target, cam, start.translation, paper_params(), mapping)
     counter = EvaluationCounter(None, None)
     search = Search(problem, counter)
     center, loss = search.coarse(start, 0, "paper")
@@ -181,5 +182,48 @@ def run_compare(sizes: tuple[int, ...] = (1_000_000,), runs: int = 3,
             f"({r['default_error_cm_median']:.1f} cm), plain paper run {r['paper_seconds_median']:.2f} s "
             f"({r['paper_error_cm_median']:.1f} cm), default / paper {r['ratio_median']:.2f} "
             "(median of the per-start ratios)")
+    out["load_average_end"] = os.getloadavg()[0]
+    return out
+
+
+def run_compare_scenes(folders: list, runs: int = 3, log: Callable[[str], None] = print) -> dict:
+    """:func:`run_compare` on scene folders (the catalogue's: map.ply, labels.png,
+    camera_info.yaml, ground_truth.yaml): from the paper's starts around the truth (the
+    evaluation protocol's first ``runs``), the default procedure and one plain paper run,
+    alternating start by start, with the ratio of their seconds."""
+    from pathlib import Path
+
+    from semcal_ros.io import files, ply
+
+    out: dict = {"load_average_start": os.getloadavg()[0]}
+    for folder in map(Path, folders):
+        world = ply.read_ply(folder / "map.ply")
+        cam = files.read_camera_info(folder / "camera_info.yaml")
+        target = files.read_label_image(folder / "labels.png")
+        truth = files.read_pose(folder / "ground_truth.yaml")
+        rows = []
+        for i, start in enumerate(initial_guesses(truth, ProtocolParams(runs=runs, keep=1))):
+            res = calibrate(world, target, cam, start, seed=i)
+            pose, evals, seconds = paper_run(world, target, cam, start)
+            rows.append((res.seconds, seconds, res.seconds / seconds,
+                         translation_error(res.pose, truth) * 100,
+                         translation_error(pose, truth) * 100))
+            log(f"compare {folder.name}, start {i + 1}/{runs}: default {res.seconds:.2f} s "
+                f"({rows[-1][3]:.1f} cm), paper run {seconds:.2f} s ({rows[-1][4]:.1f} cm), "
+                f"ratio {rows[-1][2]:.2f}, load {os.getloadavg()[0]:.1f}")
+        arr = np.array(rows)
+        out[folder.name] = {
+            "points": len(world), "runs": runs,
+            "default_seconds_median": float(np.median(arr[:, 0])),
+            "paper_seconds_median": float(np.median(arr[:, 1])),
+            "ratio_median": float(np.median(arr[:, 2])),
+            "default_error_cm_median": float(np.median(arr[:, 3])),
+            "paper_error_cm_median": float(np.median(arr[:, 4])),
+        }
+        r = out[folder.name]
+        log(f"compare {folder.name} ({len(world):,d} points), {runs} starts: default "
+            f"{r['default_seconds_median']:.2f} s ({r['default_error_cm_median']:.1f} cm), plain "
+            f"paper run {r['paper_seconds_median']:.2f} s ({r['paper_error_cm_median']:.1f} cm), "
+            f"default / paper {r['ratio_median']:.2f} (median of the per-start ratios)")
     out["load_average_end"] = os.getloadavg()[0]
     return out

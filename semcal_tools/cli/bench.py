@@ -22,6 +22,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "alternating, with the ratio")
     p.add_argument("--compare-sizes", default="1000000,3500000",
                    help="map sizes (points) of --compare")
+    p.add_argument("--compare-scenes", nargs="+", metavar="DIR", default=(),
+                   help="--compare on scene folders (map.ply, labels.png, camera_info.yaml, "
+                        "ground_truth.yaml: the catalogue's), from the evaluation protocol's "
+                        "first --calibrations starts (with --sizes '' --calibration-sizes '': only this)")
     p.set_defaults(func=run)
 
 
@@ -38,12 +42,18 @@ def run(args: argparse.Namespace) -> int:
         f"load average {os.getloadavg()[0]:.1f}")
     cal_sizes = tuple(int(s) for s in args.calibration_sizes.split(",") if s)
     sizes = tuple(s for s in sizes if s)
-    results = run_benchmarks(sizes, args.repeats, args.calibrations, cal_sizes, log)
+    results = (run_benchmarks(sizes, args.repeats, args.calibrations, cal_sizes, log)
+               if sizes or cal_sizes else {})
     if args.compare:
         from semcal_tools.bench import run_compare
 
         cmp_sizes = tuple(int(s) for s in args.compare_sizes.split(",") if s)
         results["compare"] = run_compare(cmp_sizes, args.calibrations, log)
+    if args.compare_scenes:
+        from semcal_tools.bench import run_compare_scenes
+
+        results["compare_scenes"] = run_compare_scenes(list(args.compare_scenes),
+                                                       args.calibrations, log)
     if args.json:
         print(json.dumps(results, indent=2))
     return 0
