@@ -198,3 +198,28 @@ def test_a_failed_verdict_stays_failed_and_also_names_the_start(scene_factory):
 def test_basin_bounds_are_checked_by_name():
     with pytest.raises(ValueError, match="quality.basin_yaw_deg"):
         QualityParams(basin_yaw_deg=0.0)
+
+
+def test_class_evidence_gives_each_class_its_share_coverage_and_agreement():
+    """Which classes of the map to trust: per class of the labels (sky aside), its share of the
+    labelled pixels, how much of it the map covers, how much of that agrees; largest first."""
+    from semcal_ros.engine.quality import class_evidence
+    from semcal_ros.engine.results import ClassEvidence, QualityReport
+
+    road, building, sky = CITYSCAPES_ID["road"], CITYSCAPES_ID["building"], CITYSCAPES_ID["sky"]
+    target = np.array([[road, road, road, road], [building, building, sky, INVALID]], np.uint8)
+    drawn = np.array([[road, road, building, INVALID], [building, INVALID, road, road]],
+                     np.uint8)
+    ev = class_evidence(drawn, target)
+    assert [c.name for c in ev] == ["road", "building"]
+    assert ev[0] == ClassEvidence("road", 4 / 6, 3 / 4, 2 / 3)
+    assert ev[1] == ClassEvidence("building", 2 / 6, 1 / 2, 1.0)
+    report = QualityReport("good", "", 0.75, {}, 0.7, (0, 0, 0), (0, 0, 0),
+                           classes=(ClassEvidence("road", 0.6, 0.9, 0.9),
+                                    ClassEvidence("building", 0.3, 0.5, 0.2),
+                                    ClassEvidence("pole", 0.005, 1.0, 0.0)))
+    line = report.classes_line()
+    assert line.startswith("classes, agree (covered): road 90 % (90 % covered), building 20 %")
+    assert "pole" not in line and "disagree on most of their pixels here: building (" in line
+    assert report.to_dict()["classes"][1] == {"class": "building", "share": 0.3,
+                                              "coverage": 0.5, "agreement": 0.2}

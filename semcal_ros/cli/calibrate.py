@@ -229,6 +229,7 @@ def _report(args: argparse.Namespace, calibration, overlays: list[str]) -> None:
           f"{result.spread_translation_m * 100:.1f} cm / {result.spread_rotation_deg:.3f} deg")
     if result.quality is not None:
         print(f"quality {result.quality.summary()}")
+        print(f"  {result.quality.classes_line()}")
     print(f"result written to {args.output}")
     if args.loss_curve:
         files.write_rgb_image(args.loss_curve, loss_curve(result.history))

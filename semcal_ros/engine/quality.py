@@ -40,7 +40,7 @@ from semcal_ros.engine.labels import CITYSCAPES, INVALID, SKY
 from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error
 
 from semcal_ros.engine.evidence import Evidence, axis_offsets
-from semcal_ros.engine.results import QualityReport, RunResult
+from semcal_ros.engine.results import ClassEvidence, QualityReport, RunResult
 
 
 class ProbedProblem(Protocol):
@@ -151,6 +151,29 @@ def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 
     per_class = {CITYSCAPES.get(int(c), str(int(c))): float(hits[c] / total[c])
                  for c in np.nonzero(total)[0] if c != SKY}
     return float(same.mean()), per_class
+
+
+def class_evidence(rendered: np.ndarray, target: np.ndarray, crop_top: float = 0.0
+                   ) -> tuple[ClassEvidence, ...]:
+    """Per class of the labels (not sky: the map has none to draw), largest first: its share
+    of the labelled pixels, the share of its pixels a map point covers, and the share of those
+    the map labels the same. Both images hold aligned classes."""
+    top = int(round(crop_top * target.shape[0]))
+    r = rendered[top:].ravel()
+    t = target[top:].ravel()
+    labelled = (t != INVALID) & (t != SKY)
+    if not labelled.any():
+        return ()
+    t, r = t[labelled], r[labelled]
+    total = np.bincount(t, minlength=256)
+    drawn = r != INVALID
+    covered = np.bincount(t[drawn], minlength=256)
+    same = np.bincount(t[drawn & (r == t)], minlength=256)
+    out = [ClassEvidence(CITYSCAPES.get(int(c), str(int(c))), float(total[c] / len(t)),
+                         float(covered[c] / total[c]),
+                         float(same[c] / covered[c]) if covered[c] else 0.0)
+           for c in np.nonzero(total)[0]]
+    return tuple(sorted(out, key=lambda e: -e.share))
 
 
 def axis_uncertainty(problem: ProbedProblem, pose: Pose, params: QualityParams,
@@ -341,8 +364,9 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         start_outside_basin=bool(outside),
         uncertainty_method=evidence.method if evidence is not None else "loss rise",
         evidence_sigma=tuple(float(v) for v in evidence.sigma) if evidence is not None else (),
-        evidence_moves=tuple(float(v) for v in evidence.moves) if evidence is not None else ())
+        evidence_moves=tuple(float(v) for v in evidence.moves) if evidence is not None else (),
+        classes=class_evidence(rendered, problem.target, problem.params.loss.crop_top))
 
 
 __all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
-           "beyond_basin", "label_agreement", "start_offset"]
+           "beyond_basin", "class_evidence", "label_agreement", "start_offset"]

@@ -33,6 +33,23 @@ class RunResult:
 
 
 @dataclass(frozen=True)
+class ClassEvidence:
+    """What one class of the labels says at the result: which of the map's classes to trust.
+    An unfamiliar lidar's point labels fail by class (facades called vegetation, the road's
+    edge called terrain): a class the map covers but disagrees on pulls the pose wherever its
+    mislabelled points lie."""
+
+    name: str  # Cityscapes name
+    share: float  # of the labelled pixels the loss judges (sky aside)
+    coverage: float  # of the class's pixels, those a map point covers
+    agreement: float  # of those covered, those the map labels the same
+
+    def to_dict(self) -> dict:
+        return {"class": self.name, "share": round(self.share, 4),
+                "coverage": round(self.coverage, 4), "agreement": round(self.agreement, 4)}
+
+
+@dataclass(frozen=True)
 class QualityReport:
     verdict: str  # "good" | "inconclusive" | "failed"
     reason: str  # one line: why (names the axis or the measure at fault)
@@ -55,6 +72,8 @@ class QualityReport:
     uncertainty_method: str = "loss rise"
     evidence_sigma: tuple[float, ...] = ()
     evidence_moves: tuple[float, ...] = ()
+    # per class of the labels, largest first (engine.quality.class_evidence)
+    classes: tuple[ClassEvidence, ...] = ()
 
     def to_dict(self) -> dict:
         """The ``quality:`` group of a result YAML."""
@@ -65,6 +84,7 @@ class QualityReport:
             "agreement_per_class": {k: round(float(v), 4)
                                     for k, v in self.agreement_per_class.items()},
             "coverage": round(float(self.coverage), 4),
+            "classes": [c.to_dict() for c in self.classes],
             "uncertainty_translation_m": [round(float(v), 4)
                                           for v in self.uncertainty_translation_m],
             "uncertainty_rpy_deg": [round(float(v), 4) for v in self.uncertainty_rpy_deg],
@@ -78,6 +98,24 @@ class QualityReport:
                 "start_outside_basin": bool(self.start_outside_basin)}
                if self.start_offset is not None else {}),
         }
+
+    def classes_line(self, min_share: float = 0.01, trusted: float = 0.5) -> str:
+        """The classes of at least ``min_share`` of the labels, largest first: how much of each
+        the map covers and how much of that agrees; those agreeing on less than ``trusted``
+        named apart (the map's labels of that class are not what the camera's segmenter
+        sees)."""
+        shown = [c for c in self.classes if c.share >= min_share]
+        if not shown:
+            return "classes: none covered"
+        cells = [f"{c.name} {c.agreement * 100:.0f} % ({c.coverage * 100:.0f} % covered)"
+                 for c in shown]
+        low = [c.name for c in shown if c.coverage > 0 and c.agreement < trusted]
+        line = "classes, agree (covered): " + ", ".join(cells)
+        if low:
+            line += (f"; disagree on most of their pixels here: {', '.join(low)} (at a right "
+                     "pose: the map's labels of these are not what the camera's segmenter "
+                     "sees)")
+        return line
 
     def summary(self) -> str:
         """One line for logs and the overlay."""
