@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import time
 from dataclasses import replace
 
 import numba
@@ -28,6 +27,7 @@ import numpy as np
 from semcal_ros.engine.render import fast, prepare_map, view_for
 from semcal_ros.engine.render.fast import _distort
 from semcal_ros.engine.render.view import EMPTY_KEY, MAX_DEPTH_MM, RADIUS_STEPS, RenderParams
+from semcal_tools.bench import median_ms
 from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world_of_size
 
 
@@ -77,15 +77,6 @@ def plain_keys(xyz, label, r, t, intr, dc, bounds, lam, rmax, near, far, offsets
     return out
 
 
-def _median_ms(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times) * 1000.0)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="1000000,3500000")
@@ -112,14 +103,13 @@ def main() -> None:
         if not (np.array_equal(plain(), ours) and np.array_equal(plain(True), ours)):
             raise SystemExit(f"{n:,d} points: the plain renderer's z-buffer differs from the "
                              "engine's: not the same discs")
-        fast.render(pmap, view), fast.render(pmap, lod_on)  # warm
         rows = {"plain": [], "plain_min": [], "keys": [], "labels": [], "labels_lod": []}
         for _ in range(3):  # interleaved blocks
-            rows["plain"].append(_median_ms(plain, args.repeats))
-            rows["plain_min"].append(_median_ms(lambda: plain(True), args.repeats))
-            rows["keys"].append(_median_ms(lambda: fast.render_keys(pmap, view), args.repeats))
-            rows["labels"].append(_median_ms(lambda: fast.render(pmap, view), args.repeats))
-            rows["labels_lod"].append(_median_ms(lambda: fast.render(pmap, lod_on), args.repeats))
+            rows["plain"].append(median_ms(plain, args.repeats))
+            rows["plain_min"].append(median_ms(lambda: plain(True), args.repeats))
+            rows["keys"].append(median_ms(lambda: fast.render_keys(pmap, view), args.repeats))
+            rows["labels"].append(median_ms(lambda: fast.render(pmap, view), args.repeats))
+            rows["labels_lod"].append(median_ms(lambda: fast.render(pmap, lod_on), args.repeats))
         m = {k: float(np.median(v)) for k, v in rows.items()}
         best = min(m["plain"], m["plain_min"])  # the faster plain renderer is the baseline
         print(f"{len(pmap):>9,d} points: plain {m['plain']:.2f} ms (min-stores "

@@ -30,7 +30,8 @@ from semcal_tools.protocol import ProtocolParams, initial_guesses
 from semcal_tools.synthetic import GROUND_TRUTH, camera, street_world_of_size, target_image
 
 
-def _median_ms(fn: Callable[[], object], repeats: int) -> float:
+def median_ms(fn: Callable[[], object], repeats: int) -> float:
+    """Milliseconds, the median of ``repeats`` calls after one to warm up."""
     fn()  # warm-up (numba compilation, caches)
     times = []
     for _ in range(repeats):
@@ -61,9 +62,9 @@ def run_benchmarks(sizes: tuple[int, ...] = (100_000, 1_000_000, 3_000_000), rep
         row = {
             "points": len(pmap),
             "drawn": int(len(reference.project_points(pmap, view)[0])),
-            "fast": _median_ms(lambda: fast.render(pmap, view), repeats),
-            "fast_all_points": _median_ms(lambda: fast.render(pmap, full), repeats),
-            "reference": _median_ms(lambda: reference.render(pmap, view), max(3, repeats // 5)),
+            "fast": median_ms(lambda: fast.render(pmap, view), repeats),
+            "fast_all_points": median_ms(lambda: fast.render(pmap, full), repeats),
+            "reference": median_ms(lambda: reference.render(pmap, view), max(3, repeats // 5)),
         }
         results["render_ms"][str(n)] = row
         log(f"render {len(pmap):>9,d} points {cam.width}x{cam.height} ({row['drawn']:,d} drawn "
@@ -80,8 +81,8 @@ def run_benchmarks(sizes: tuple[int, ...] = (100_000, 1_000_000, 3_000_000), rep
     lp = LossParams()
     loss = LabelLoss(aligned, lp)
     results["loss_ms"] = {
-        "fast": _median_ms(lambda: loss(rendered), repeats * 4),
-        "reference": _median_ms(lambda: loss_reference(rendered, aligned, loss.table, lp), repeats),
+        "fast": median_ms(lambda: loss(rendered), repeats * 4),
+        "reference": median_ms(lambda: loss_reference(rendered, aligned, loss.table, lp), repeats),
     }
     log(f"loss {cam.width}x{cam.height}: fast {results['loss_ms']['fast']:.3f} ms, "
         f"numpy reference {results['loss_ms']['reference']:.3f} ms")
@@ -146,6 +147,34 @@ def paper_run(world, target: np.ndarray, cam, start: Pose, mapping=None
     return Pose.from_vector(center), counter.evaluations, time.perf_counter() - t0
 
 
+def _compare_starts(name: str, world, target: np.ndarray, cam, truth: Pose, starts: list[Pose],
+                    log: Callable[[str], None]) -> dict:
+    """The default procedure and one plain paper run from each start, alternating, on one map:
+    per start the seconds, their ratio and both errors; the medians returned."""
+    rows = []
+    for i, start in enumerate(starts):
+        res = calibrate(world, target, cam, start, seed=i)
+        pose, evals, seconds = paper_run(world, target, cam, start)
+        rows.append((res.seconds, seconds, res.seconds / seconds,
+                     translation_error(res.pose, truth) * 100, translation_error(pose, truth) * 100))
+        log(f"compare {name}, start {i + 1}/{len(starts)}: default {res.seconds:.2f} s "
+            f"({res.evaluations} evaluations, {rows[-1][3]:.1f} cm), paper run {seconds:.2f} s "
+            f"({evals} evaluations, {rows[-1][4]:.1f} cm), ratio {rows[-1][2]:.2f}, "
+            f"load {os.getloadavg()[0]:.1f}")
+    arr = np.array(rows)
+    r = {"points": len(world), "runs": len(starts),
+         "default_seconds_median": float(np.median(arr[:, 0])),
+         "paper_seconds_median": float(np.median(arr[:, 1])),
+         "ratio_median": float(np.median(arr[:, 2])),
+         "default_error_cm_median": float(np.median(arr[:, 3])),
+         "paper_error_cm_median": float(np.median(arr[:, 4]))}
+    log(f"compare {name}, {len(starts)} starts: default {r['default_seconds_median']:.2f} s "
+        f"({r['default_error_cm_median']:.1f} cm), plain paper run "
+        f"{r['paper_seconds_median']:.2f} s ({r['paper_error_cm_median']:.1f} cm), default / "
+        f"paper {r['ratio_median']:.2f} (median of the per-start ratios)")
+    return r
+
+
 def run_compare(sizes: tuple[int, ...] = (1_000_000,), runs: int = 3,
                 log: Callable[[str], None] = print) -> dict:
     """The default procedure (verification starts and quality report included) against one plain
@@ -156,32 +185,8 @@ def run_compare(sizes: tuple[int, ...] = (1_000_000,), runs: int = 3,
     out: dict = {"load_average_start": os.getloadavg()[0]}
     for n in sizes:
         world = street_world_of_size(n)
-        rows = []
-        for i, start in enumerate(_starts(runs)):
-            res = calibrate(world, target, cam, start, seed=i)
-            pose, evals, seconds = paper_run(world, target, cam, start)
-            rows.append((res.seconds, seconds, res.seconds / seconds,
-                         translation_error(res.pose, GROUND_TRUTH) * 100,
-                         translation_error(pose, GROUND_TRUTH) * 100, res.evaluations, evals))
-            log(f"compare {len(world):,d} points, start {i + 1}/{runs}: default {res.seconds:.2f} s "
-                f"({res.evaluations} evaluations, {rows[-1][3]:.1f} cm), paper run {seconds:.2f} s "
-                f"({evals} evaluations, {rows[-1][4]:.1f} cm), ratio {rows[-1][2]:.2f}, "
-                f"load {os.getloadavg()[0]:.1f}")
-        arr = np.array(rows)
-        key = f"compare_{n // 100_000 / 10:g}M"
-        out[key] = {
-            "points": len(world), "runs": runs,
-            "default_seconds_median": float(np.median(arr[:, 0])),
-            "paper_seconds_median": float(np.median(arr[:, 1])),
-            "ratio_median": float(np.median(arr[:, 2])),
-            "default_error_cm_median": float(np.median(arr[:, 3])),
-            "paper_error_cm_median": float(np.median(arr[:, 4])),
-        }
-        r = out[key]
-        log(f"compare on {len(world):,d} points, {runs} starts: default {r['default_seconds_median']:.2f} s "
-            f"({r['default_error_cm_median']:.1f} cm), plain paper run {r['paper_seconds_median']:.2f} s "
-            f"({r['paper_error_cm_median']:.1f} cm), default / paper {r['ratio_median']:.2f} "
-            "(median of the per-start ratios)")
+        out[f"compare_{n // 100_000 / 10:g}M"] = _compare_starts(
+            f"{len(world):,d} points", world, target, cam, GROUND_TRUTH, _starts(runs), log)
     out["load_average_end"] = os.getloadavg()[0]
     return out
 
@@ -198,32 +203,11 @@ def run_compare_scenes(folders: list, runs: int = 3, log: Callable[[str], None] 
     out: dict = {"load_average_start": os.getloadavg()[0]}
     for folder in map(Path, folders):
         world = ply.read_ply(folder / "map.ply")
-        cam = files.read_camera_info(folder / "camera_info.yaml")
-        target = files.read_label_image(folder / "labels.png")
         truth = files.read_pose(folder / "ground_truth.yaml")
-        rows = []
-        for i, start in enumerate(initial_guesses(truth, ProtocolParams(runs=runs, keep=1))):
-            res = calibrate(world, target, cam, start, seed=i)
-            pose, evals, seconds = paper_run(world, target, cam, start)
-            rows.append((res.seconds, seconds, res.seconds / seconds,
-                         translation_error(res.pose, truth) * 100,
-                         translation_error(pose, truth) * 100))
-            log(f"compare {folder.name}, start {i + 1}/{runs}: default {res.seconds:.2f} s "
-                f"({rows[-1][3]:.1f} cm), paper run {seconds:.2f} s ({rows[-1][4]:.1f} cm), "
-                f"ratio {rows[-1][2]:.2f}, load {os.getloadavg()[0]:.1f}")
-        arr = np.array(rows)
-        out[folder.name] = {
-            "points": len(world), "runs": runs,
-            "default_seconds_median": float(np.median(arr[:, 0])),
-            "paper_seconds_median": float(np.median(arr[:, 1])),
-            "ratio_median": float(np.median(arr[:, 2])),
-            "default_error_cm_median": float(np.median(arr[:, 3])),
-            "paper_error_cm_median": float(np.median(arr[:, 4])),
-        }
-        r = out[folder.name]
-        log(f"compare {folder.name} ({len(world):,d} points), {runs} starts: default "
-            f"{r['default_seconds_median']:.2f} s ({r['default_error_cm_median']:.1f} cm), plain "
-            f"paper run {r['paper_seconds_median']:.2f} s ({r['paper_error_cm_median']:.1f} cm), "
-            f"default / paper {r['ratio_median']:.2f} (median of the per-start ratios)")
+        out[folder.name] = _compare_starts(
+            f"{folder.name} ({len(world):,d} points)", world,
+            files.read_label_image(folder / "labels.png"),
+            files.read_camera_info(folder / "camera_info.yaml"), truth,
+            initial_guesses(truth, ProtocolParams(runs=runs, keep=1)), log)
     out["load_average_end"] = os.getloadavg()[0]
     return out
