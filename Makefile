@@ -18,7 +18,7 @@ demo: $(STAMP)
 
 # The suite runs in three processes on two cores (TEST_WORKERS=0: one): the node tests spend part
 # of their time waiting on other processes (start-up, DDS discovery), which a third worker fills
-# (545 tests: 266 s against 297 s with two, idle; 565 tests now: 314 s from a clean clone, idle).
+# (545 tests: 266 s against 297 s with two, idle; 571 tests now: 267 s from a clean clone).
 # Each test's ROS graph claims a domain id of its own; --dist loadfile keeps a file's tests on one
 # worker. No test waits on how fast the machine is: a goal that must still be running is held
 # until the test cancels it, and streams a test counts are subscribed reliably, so busy workers
