@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from semcal_ros.engine.camera import CameraModel
-from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud, finite_rows
 from semcal_ros.engine.cues import CuedLoss, EdgeCue, IntensityCue, edge_field, grey_bins
 from semcal_ros.engine.labels import INVALID, LabelMapping
 from semcal_ros.engine.loss import LabelLoss, aligned_probabilities
@@ -86,7 +86,7 @@ class Problem:
             raise ValueError("a problem needs a map: a cloud or a prepared map")
         if map_cloud is not None and prepared is None and len(map_cloud) and \
                 not np.all(np.isfinite(map_cloud.xyz)):
-            bad = int((~np.all(np.isfinite(map_cloud.xyz), axis=1)).sum())
+            bad = int((~finite_rows(map_cloud.xyz)).sum())
             raise ValueError(f"map contains {bad} NaN or infinite points")
         center = np.asarray(center, dtype=float)
         if center.shape != (3,) or not np.all(np.isfinite(center)):

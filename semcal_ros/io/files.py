@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 
 from semcal_ros.engine.camera import CameraModel
+from semcal_ros.engine.cloud import finite_rows
 from semcal_ros.engine.pose import Pose
 from semcal_ros.readers import imread, load_yaml
 
@@ -40,9 +41,9 @@ def distinct_points_problem(xyz: np.ndarray, minimum: int = MIN_DISTINCT_POINTS)
     most ``minimum`` passes over the cloud."""
     xyz = np.asarray(xyz)
     head = xyz[:4096]
-    if _distinct(head[np.all(np.isfinite(head), axis=1)], minimum) >= minimum:
+    if _distinct(head[finite_rows(head)], minimum) >= minimum:
         return ""
-    finite = xyz[np.all(np.isfinite(xyz), axis=1)]
+    finite = xyz[finite_rows(xyz)]
     if len(finite) == 0:
         return ""
     distinct = _distinct(finite, minimum)

@@ -45,6 +45,7 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
+from semcal_ros.engine.cloud import finite_rows
 from semcal_ros.engine.labels import KITTI_ID
 from semcal_ros.segmentation.forest import Forest, smoothed_best
 from semcal_ros.segmentation.point_features import FEATURE_NAMES, VoxelFeatures, voxel_features
@@ -275,7 +276,7 @@ def scan_features(xyz: np.ndarray, intensity: np.ndarray | None = None,
     point, or whose intensity length differs."""
     params = params or GeometricParams()
     xyz, intensity = _validated(xyz, intensity)
-    finite = np.isfinite(xyz).all(axis=1)
+    finite = finite_rows(xyz)
     pts = np.where(finite[:, None], xyz, 0.0).astype(np.float64)
     rng = np.linalg.norm(pts, axis=1)
     use = finite & (rng >= params.min_range) & (rng <= params.max_range)

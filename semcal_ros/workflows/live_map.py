@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud, finite_rows
 from semcal_ros.engine.pose import Pose
 from semcal_ros.mapping import MapBuildParams, ScanRejected, StreamingMapBuilder
 from semcal_ros.mapping.builder import PreparedScan
@@ -265,7 +265,7 @@ class LiveMap:
     def _prepare(self, stamp: float, msg: Any) -> PreparedScan | str:
         """The scan converted and prepared (prepare thread), or why it is ignored."""
         cloud = self._convert(msg)
-        if not np.any(np.all(np.isfinite(cloud.xyz), axis=1)):
+        if not np.any(finite_rows(cloud.xyz)):
             what = "has no points" if len(cloud) == 0 else \
                 f"has only NaN or infinite points ({len(cloud)})"
             return f"scan at {stamp:.3f} s {what}; ignored"

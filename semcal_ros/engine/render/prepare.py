@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from semcal_ros.engine.cloud import LabelledCloud
+from semcal_ros.engine.cloud import LabelledCloud, finite_rows
 from semcal_ros.engine.labels import INVALID, LabelMapping
 from semcal_ros.engine.numerics import perturb_points
 
@@ -93,7 +93,7 @@ def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
         raise ValueError("map has no labels")
     mapping = mapping or LabelMapping()
     aligned = mapping.map_lidar(cloud.label)
-    keep = (aligned != INVALID) & _finite_rows(cloud.xyz)
+    keep = (aligned != INVALID) & finite_rows(cloud.xyz)
     xyz = np.asarray(cloud.xyz, dtype=np.float64)[keep]
     aligned = aligned[keep]
     raw = cloud.extra.get("intensity")
@@ -119,12 +119,6 @@ def prepare_map(cloud: LabelledCloud, mapping: LabelMapping | None = None,
     order = np.argsort(_morton_codes(local), kind="stable")
     codes = None if intensity is None else intensity_codes(intensity)[order]
     return _with_chunks(origin, local[order], aligned[order], codes)
-
-
-def _finite_rows(xyz: np.ndarray) -> np.ndarray:
-    """Rows of (N, 3) ``xyz`` whose three values are finite, column by column: numpy's
-    reductions across a row of three are 5x slower (36 against 7 ms on 3.4 M points)."""
-    return np.isfinite(xyz[:, 0]) & np.isfinite(xyz[:, 1]) & np.isfinite(xyz[:, 2])
 
 
 def _column_extremes(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
