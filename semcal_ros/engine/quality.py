@@ -136,44 +136,55 @@ class QualityParams:
 def label_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float = 0.0
                     ) -> tuple[float, dict[str, float]]:
     """Share of pixels where the map drew a point and the target has a class whose classes agree,
-    and the same per target class (by Cityscapes name). Both images hold aligned classes."""
-    top = int(round(crop_top * target.shape[0]))
-    r = rendered[top:].ravel()
-    t = target[top:].ravel()
-    both = (r != INVALID) & (t != INVALID)
-    if not both.any():
-        return 0.0, {}
-    r, t = r[both], t[both]
-    same = r == t
-    total = np.bincount(t, minlength=256)
-    hits = np.bincount(t[same], minlength=256)
-    # per class of the labels; not sky: the map has no sky to draw, so it could only disagree
-    per_class = {CITYSCAPES.get(int(c), str(int(c))): float(hits[c] / total[c])
-                 for c in np.nonzero(total)[0] if c != SKY}
-    return float(same.mean()), per_class
+    and the same per target class (by Cityscapes name; not sky: the map has no sky to draw, so
+    it could only disagree), in class order. Both images hold aligned classes."""
+    return (_overall_agreement(rendered, target, crop_top),
+            _agreement_per_class(_classes_in_order(rendered, target, crop_top)))
 
 
 def class_evidence(rendered: np.ndarray, target: np.ndarray, crop_top: float = 0.0
                    ) -> tuple[ClassEvidence, ...]:
-    """Per class of the labels (not sky: the map has none to draw), largest first: its share
-    of the labelled pixels, the share of its pixels a map point covers, and the share of those
-    the map labels the same. Both images hold aligned classes."""
+    """Per class of the labels (not sky), largest first: its share of the labelled pixels, the
+    share of its pixels a map point covers, and the share of those the map labels the same.
+    Both images hold aligned classes."""
+    return _largest_first(_classes_in_order(rendered, target, crop_top))
+
+
+def _overall_agreement(rendered: np.ndarray, target: np.ndarray, crop_top: float) -> float:
+    top = int(round(crop_top * target.shape[0]))
+    r, t = rendered[top:].ravel(), target[top:].ravel()
+    both = (r != INVALID) & (t != INVALID)
+    return float((r[both] == t[both]).mean()) if both.any() else 0.0
+
+
+def _classes_in_order(rendered: np.ndarray, target: np.ndarray, crop_top: float
+                      ) -> list[ClassEvidence]:
+    """:func:`class_evidence`'s figures in class order: the one count behind the per-class
+    agreement and the per-class evidence."""
     top = int(round(crop_top * target.shape[0]))
     r = rendered[top:].ravel()
     t = target[top:].ravel()
     labelled = (t != INVALID) & (t != SKY)
     if not labelled.any():
-        return ()
+        return []
     t, r = t[labelled], r[labelled]
     total = np.bincount(t, minlength=256)
     drawn = r != INVALID
     covered = np.bincount(t[drawn], minlength=256)
     same = np.bincount(t[drawn & (r == t)], minlength=256)
-    out = [ClassEvidence(CITYSCAPES.get(int(c), str(int(c))), float(total[c] / len(t)),
-                         float(covered[c] / total[c]),
-                         float(same[c] / covered[c]) if covered[c] else 0.0)
-           for c in np.nonzero(total)[0]]
-    return tuple(sorted(out, key=lambda e: -e.share))
+    return [ClassEvidence(CITYSCAPES.get(int(c), str(int(c))), float(total[c] / len(t)),
+                          float(covered[c] / total[c]),
+                          float(same[c] / covered[c]) if covered[c] else 0.0)
+            for c in np.nonzero(total)[0]]
+
+
+def _agreement_per_class(classes: list[ClassEvidence]) -> dict[str, float]:
+    """The agreement of each class the map covers (the report's ``agreement_per_class``)."""
+    return {c.name: c.agreement for c in classes if c.coverage > 0}
+
+
+def _largest_first(classes: list[ClassEvidence]) -> tuple[ClassEvidence, ...]:
+    return tuple(sorted(classes, key=lambda e: -e.share))
 
 
 def axis_uncertainty(problem: ProbedProblem, pose: Pose, params: QualityParams,
@@ -267,8 +278,10 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
     qp = params or problem.params.quality
     sp = problem.params.search
     rendered = problem.render(pose)  # one full-resolution render serves agreement and loss
-    agreement, per_class = label_agreement(rendered, problem.target,
-                                           problem.params.loss.crop_top)
+    crop = problem.params.loss.crop_top
+    agreement = _overall_agreement(rendered, problem.target, crop)
+    in_order = _classes_in_order(rendered, problem.target, crop)
+    per_class = _agreement_per_class(in_order)
     loss_full, coverage = problem.level(-1).loss.evaluate(rendered)
     floor_full = problem.level(-1).loss.floor(rendered)
     at_full = problem.stages[qp.stage].scale == problem.stages[-1].scale
@@ -365,7 +378,7 @@ def assess(problem: ProbedProblem, pose: Pose, runs: Sequence["RunResult"] = (),
         uncertainty_method=evidence.method if evidence is not None else "loss rise",
         evidence_sigma=tuple(float(v) for v in evidence.sigma) if evidence is not None else (),
         evidence_moves=tuple(float(v) for v in evidence.moves) if evidence is not None else (),
-        classes=class_evidence(rendered, problem.target, problem.params.loss.crop_top))
+        classes=_largest_first(in_order))
 
 
 __all__ = ["AXES", "VERDICTS", "QualityParams", "QualityReport", "assess", "axis_uncertainty",
