@@ -406,8 +406,13 @@ def test_calibrator_kept_its_inputs_and_serves_a_good_goal_after_the_bad_inputs(
 def test_a_goal_while_one_runs_is_answered_with_the_reason(calibrator):
     c = calibrator
     first = c.client.send(c.executor, held_goal(c.start()))  # runs until cancelled below
-    spin_until(c.executor, lambda: c.diag().get("state", "").startswith("running"), 30,
-               "the first goal to run")
+    assert first.accepted
+    # this goal, by its id: a diagnostics message from the goal before it also said "running",
+    # and an accepted goal is claimed only once its execute callback runs (under load, after
+    # the next goal had arrived: that one then ran, and this one was the busy one)
+    first_id = bytes(first.goal_handle.goal_id.uuid).hex()[:8]
+    spin_until(c.executor, lambda: c.diag().get("state", "").startswith(f"running {first_id}"),
+               30, f"the first goal ({first_id}) to run")
     second = c.call(c.good_goal(), timeout=30)
     assert_aborted(second, "busy: goal ", "has been running for", "(one calibration at a time)")
     spin_until(c.executor, lambda: c.diag()["last_rejection"].startswith("busy: goal "), 30,

@@ -76,16 +76,17 @@ def test_two_cameras_on_one_map(tmp_path, scene_factory):
         holder = client.send(executor, held_goal(read_pose(scene / cams[0]["folder"] /
                                                            "initial.yaml"),
                                                  camera_frame_id=f"{a}_optical"))
+        assert holder.accepted
+        holder_id = bytes(holder.goal_handle.goal_id.uuid).hex()[:8]
         spin_until(executor, lambda: watcher.get(f"calibrator/{a}").get("state", "")
-                   .startswith("running"), 30, f"{a}'s goal to run")
+                   .startswith(f"running {holder_id}"), 30, f"{a}'s goal to run")
         second = client.send(executor, goal(cams[1], b))
-        assert holder.accepted and second.accepted
+        assert second.accepted
         spin_until(executor, lambda: second.feedback, 30, "feedback of the queued goal")
         assert second.feedback[0][1].stage == "queued", second.feedback[0][1]
 
         busy = client.call(executor, goal(cams[0], f"{a}_optical"), timeout=30)
         assert busy.status == "aborted" and not busy.result.success
-        holder_id = bytes(holder.goal_handle.goal_id.uuid).hex()[:8]
         assert busy.result.message.startswith(
             f"busy: goal {holder_id} for camera '{a}' has been running for "), busy.result.message
         assert busy.result.message.endswith("(one calibration per camera at a time)")
