@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> None:
                          "engine": engine_commit(), "load": round(os.getloadavg()[0], 2)}
             t0, c0 = time.perf_counter(), time.process_time()
             try:
-                res = solve(problem, start, seed=0)
+                res = solve(problem, start, seed=args.seed)
             except CalibrationFailed as exc:
                 row.update(error=str(exc))
                 with out.open("a") as fh:
@@ -176,6 +176,9 @@ def main() -> None:
     r.add_argument("--starts", nargs="+", type=int, default=[0])
     r.add_argument("--config", default=None)
     r.add_argument("--out", required=True)
+    r.add_argument("--seed", type=int, default=0,
+                   help="the search's seed (its verification starts): another seed on the "
+                        "same data shows how far results move by the search alone")
     t = sub.add_parser("table")
     t.add_argument("files", nargs="+")
     t.add_argument("--sigmas", nargs="+", type=float, default=[2.0],

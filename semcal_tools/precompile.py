@@ -89,13 +89,14 @@ def labeller_scan(n_ground: int = 3000) -> np.ndarray:
 
 
 def compile_labeller() -> None:
-    """The geometric point labeller (eigen features, the forest's re-layout and walk), with
-    the types a float32 and a float64 scan reach."""
-    from semcal_ros.segmentation.geometric import label_scan
+    """The geometric point labeller (eigen features, the forest's re-layout and walk, the
+    sparse lidar's road bridge), with the types a float32 and a float64 scan reach."""
+    from semcal_ros.segmentation.geometric import SPARSE_LIDAR, GeometricParams, label_scan
 
     xyz = labeller_scan()
     for dtype in (np.float32, np.float64):
-        label_scan(xyz.astype(dtype), np.ones(len(xyz), dtype))
+        for params in (GeometricParams(), GeometricParams(**SPARSE_LIDAR)):
+            label_scan(xyz.astype(dtype), np.ones(len(xyz), dtype), params)
 
 
 def main() -> None:

@@ -110,6 +110,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "builder's mapping.d_max)")
     p.add_argument("--voxel", type=float,
                    help="map voxel size, m (default: the map builder's mapping.voxel)")
+    p.add_argument("--cloud-config", type=Path, default=None, metavar="YAML",
+                   help="with --cloud-labels geometric: the labeller's parameters from this "
+                        "cloud_segmenter params file (e.g. config/cloud_segmenter_sparse.yaml "
+                        "for a lidar whose rings lie 1 deg apart or more)")
     p.add_argument("--label-distance", type=float, default=0.3,
                    help="semantickitti: max distance to a labelled point for scans without "
                         "labels, m (default 0.3)")
@@ -189,6 +193,18 @@ class FramePlan:
     cloud_labels: list[str]
     labels: Path | None
     out: Path
+
+
+def geometric_params(args: argparse.Namespace):
+    """``--cloud-config``'s labeller parameters (None without it: the labeller's defaults)."""
+    if args.cloud_config is None:
+        return None
+    if list(args.cloud_labels) != ["geometric"]:
+        raise ValueError("--cloud-config configures the geometric labeller: it needs "
+                         "--cloud-labels geometric")
+    from semcal_ros.segmentation.geometric import params_from_file
+
+    return params_from_file(args.cloud_config)
 
 
 def plan_frames(args: argparse.Namespace) -> list[FramePlan]:
@@ -325,7 +341,8 @@ def gather_inputs(args: argparse.Namespace, plan: FramePlan):
         registered = [f"{len(clouds)} scans without poses: registered scan to scan (ICP), "
                       f"{np.linalg.norm(poses[-1][:3, 3]):.2f} m from the first to the last"]
     clouds, described, notes = label_scans(list(plan.scans), clouds, list(plan.cloud_labels),
-                                           poses, args.label_distance)
+                                           poses, args.label_distance,
+                                           geometric_params(args))
     notes = registered + list(notes)
     labeller = plan.cloud_labels[0] if list(plan.cloud_labels) in ([m] for m in MODEL_FREE) \
         else None

@@ -73,14 +73,9 @@ def run(args: argparse.Namespace) -> int:
 
     geometric = None
     if not POINT_LABELLERS[args.method].needs_model:
-        from semcal_ros.segmentation.geometric import GeometricParams
+        from semcal_ros.segmentation.geometric import params_from_file
 
-        geometric = GeometricParams()
-        if args.config is not None:
-            from semcal_ros.engine.config import apply_flat, load_node_group
-
-            geometric = apply_flat(geometric, load_node_group(args.config, "cloud_segmenter",
-                                                              "geometric"))
+        geometric = params_from_file(args.config)
     elif args.model is None or args.model_config is None:
         raise ValueError(f"--method {args.method} needs --model and --model-config "
                          "(or use --method geometric)")

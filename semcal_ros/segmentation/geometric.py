@@ -14,8 +14,9 @@ level sensor (z up, sensor at the origin) in these steps:
    filled from the nearest filled cell.
 4. **Kerb rules** on the ground points: a fine grid of ground heights; cells with a step to a
    neighbour above ``kerb_step`` are kerbs; the kerb-free region connected to the sensor's own
-   ground is road, ground clearly above the nearest road is sidewalk, rough ground terrain.
-   Their guess is one of the classifier's features, not the answer.
+   ground (with ``road_gap``, also across the gaps between a sparse lidar's rings) is road,
+   ground clearly above the nearest road is sidewalk, rough ground terrain. Their guess is one
+   of the classifier's features, not the answer.
 5. **Voxel features** (:mod:`~semcal_ros.segmentation.point_features`): local covariance at two
    scales (linearity, planarity, scattering, verticality), the column and object each voxel
    belongs to, kerb steps, height above the ground, range: metres and shapes, no ring count,
@@ -24,7 +25,12 @@ level sensor (z up, sensor at the origin) in these steps:
    ``segmentation/data/point_labeller.npz``, trained by ``semcal_tools/train_point_labeller.py``
    on synthetic scans of eight simulated lidars and one SemanticKITTI scan) gives each voxel its
    class shares; they are averaged over the voxel's ``smoothing_neighbours`` nearest voxels,
-   and every point takes its voxel's most likely class.
+   and every point takes its voxel's most likely class. With ``ground_smoothing``, on the
+   ground from ``ground_smoothing_from`` metres on, paved (road, sidewalk) or terrain is
+   decided over ``ground_smoothing`` metres around the voxel instead: there a sparse lidar's
+   nearest voxels lie on its own ring, and ring by ring the forest alternated road and
+   terrain (bands across PJLab's road); road or sidewalk stays the voxel's own call. Both are
+   off by default (``SPARSE_LIDAR`` has them on; docs/segmentation.md says why).
 
 Rules alone (this module until issue 33) called facades vegetation on an unseen lidar and found
 30 % of KITTI's poles; shapes at several scales, weighed by trees trained on exact labels of
@@ -44,6 +50,8 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from semcal_ros.engine.cloud import finite_rows
 from semcal_ros.engine.labels import KITTI_ID
@@ -54,6 +62,10 @@ ROAD, SIDEWALK, TERRAIN = KITTI_ID["road"], KITTI_ID["sidewalk"], KITTI_ID["terr
 BUILDING, VEGETATION, TRUNK = KITTI_ID["building"], KITTI_ID["vegetation"], KITTI_ID["trunk"]
 POLE, SIGN, CAR = KITTI_ID["pole"], KITTI_ID["traffic-sign"], KITTI_ID["car"]
 FENCE = KITTI_ID["fence"]
+#: What a sparse lidar (rings 1 deg apart or more near the ground, e.g. PJLab's) is labelled
+#: with: the road across ring gaps and paved-or-terrain over 2 m of ground (issue 41;
+#: ``config/cloud_segmenter_sparse.yaml`` holds the same for the node and the CLI).
+SPARSE_LIDAR = {"road_gap": 3.0, "ground_smoothing": 2.0}
 #: The model file shipped with the package.
 MODEL_FILE = Path(__file__).with_name("data") / "point_labeller.npz"
 
@@ -80,8 +92,15 @@ class GeometricParams:
     road_reach: float = 4.0  # unconnected ground this near a road cell and level with it is road
     road_level_tolerance: float = 0.05  # "level with the road": height difference below this
     terrain_roughness: float = 0.035  # ground cells whose height spread exceeds it are terrain
+    road_gap: float = 0.0  # road continues across an empty radial gap this long (sparse rings;
+    #                        3 m for a lidar whose rings lie 1 deg apart or more: issue 41)
+    road_gap_level: float = 0.03  # ... to ground level with it within this
+    road_gap_grade: float = 0.02  # ... plus this x the gap's length (a road's grade)
     # --- classifier ---
     smoothing_neighbours: int = 10  # class shares averaged over this many nearest voxels (<= 10)
+    ground_smoothing: float = 0.0  # paved or terrain: decided over this radius of ground (m;
+    #                                2 m for a sparse lidar: issue 41)
+    ground_smoothing_from: float = 15.0  # ... this far from the sensor and beyond (sparse rings)
     min_share: float = 0.0  # voxels whose best class share is below this stay unlabeled
 
     def __post_init__(self) -> None:
@@ -99,6 +118,18 @@ class GeometricParams:
 
 
 @functools.lru_cache(maxsize=2)
+def params_from_file(path: str | Path | None) -> GeometricParams:
+    """The labeller's parameters: the defaults, with the ``geometric`` group of a
+    ``cloud_segmenter`` params file over them (None: the defaults). Unknown keys and bad values
+    are ValueErrors naming them."""
+    params = GeometricParams()
+    if path is None:
+        return params
+    from semcal_ros.engine.config import apply_flat, load_node_group
+
+    return apply_flat(params, load_node_group(path, "cloud_segmenter", "geometric"))
+
+
 def load_model(path: str = str(MODEL_FILE)) -> Forest:
     """The point labeller's forest (read once per process)."""
     return Forest.load(path, FEATURE_NAMES)
@@ -227,6 +258,115 @@ def _kerb_steps(zmean, kerb_step):  # pragma: no cover - numba
     return step
 
 
+@nb.njit(cache=True, nogil=True)
+def _find(parent, a):  # pragma: no cover - numba
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@nb.njit(cache=True, nogil=True)
+def _free_components(zmean, free, kerb_step):  # pragma: no cover - numba
+    """(labels 1..n of the kerb-free cells' components, 0 elsewhere; n). Cells join their free
+    8-neighbours, a diagonal one only when level with it within ``kerb_step``: a ring that
+    crosses a kerb at a slant steps diagonally from road to sidewalk, a step the 4-neighbour
+    kerb test does not see (joined over 8 neighbours without this test, such a ring made the
+    sidewalk road)."""
+    n0, n1 = zmean.shape
+    parent = np.arange(n0 * n1)
+    for i in range(n0 - 1):
+        for j in range(n1):
+            if not free[i, j]:
+                continue
+            a = i * n1 + j
+            if j + 1 < n1 and free[i, j + 1]:
+                ra, rb = _find(parent, a), _find(parent, a + 1)
+                parent[max(ra, rb)] = min(ra, rb)
+            if free[i + 1, j]:
+                ra, rb = _find(parent, a), _find(parent, a + n1)
+                parent[max(ra, rb)] = min(ra, rb)
+            for dj in (-1, 1):
+                jj = j + dj
+                if 0 <= jj < n1 and free[i + 1, jj] \
+                        and abs(zmean[i + 1, jj] - zmean[i, j]) <= kerb_step:
+                    ra, rb = _find(parent, a), _find(parent, (i + 1) * n1 + jj)
+                    parent[max(ra, rb)] = min(ra, rb)
+    labels = np.zeros((n0, n1), np.int64)
+    index = np.zeros(n0 * n1, np.int64)
+    n = 0
+    for i in range(n0):
+        for j in range(n1):
+            if free[i, j]:
+                r = _find(parent, i * n1 + j)
+                if index[r] == 0:
+                    n += 1
+                    index[r] = n
+                labels[i, j] = index[r]
+    return labels, n
+
+
+@nb.njit(cache=True, nogil=True)
+def _radial_bridges(zmean, free, comp, origin, cell, max_gap, tolerance,
+                    grade):  # pragma: no cover - numba
+    """Pairs of components of kerb-free cells that an empty radial gap joins: from each free
+    cell, walk away from the sensor (at ``origin``, in cells) over empty cells, at most ``max_gap``
+    cells; a free cell reached whose height differs by less than ``tolerance + grade x gap``
+    (metres) is the same surface seen by the next ring. A sparse lidar's rings lie 1-2 m apart
+    on the road at 15-30 m: without this each ring is a piece of its own and only the first
+    ones near the sensor are road (PJLab's bands of sidewalk and terrain across the road)."""
+    n0, n1 = zmean.shape
+    out_a = []
+    out_b = []
+    for i in range(n0):
+        for j in range(n1):
+            if not free[i, j]:
+                continue
+            di, dj = i + 0.5 - origin, j + 0.5 - origin
+            norm = np.sqrt(di * di + dj * dj)
+            if norm < 1.0:
+                continue
+            di, dj = di / norm, dj / norm
+            for k in range(1, max_gap + 1):
+                ii = int(np.floor(i + 0.5 + di * k))
+                jj = int(np.floor(j + 0.5 + dj * k))
+                if ii < 0 or jj < 0 or ii >= n0 or jj >= n1:
+                    break
+                if np.isnan(zmean[ii, jj]):
+                    continue
+                if free[ii, jj] and comp[ii, jj] != comp[i, j] \
+                        and abs(zmean[ii, jj] - zmean[i, j]) < tolerance + grade * k * cell:
+                    out_a.append(comp[i, j])
+                    out_b.append(comp[ii, jj])
+                break
+    return np.array(out_a, np.int64), np.array(out_b, np.int64)
+
+
+def _road_components(zmean: np.ndarray, free: np.ndarray, seed: np.ndarray,
+                     params: GeometricParams, grid: _Grid) -> np.ndarray:
+    """The kerb-free cells connected to the road seed: 8-neighbours, and with ``road_gap``
+    across empty radial gaps (:func:`_radial_bridges`; diagonal neighbours then join only when
+    level, :func:`_free_components`). Without it, the labeller's pieces as before issue 41."""
+    gap = int(np.floor(params.road_gap / grid.cell))
+    if gap > 0:
+        comp, ncomp = _free_components(zmean, free, params.kerb_step)
+    else:
+        comp, ncomp = ndimage.label(free, structure=np.ones((3, 3)))
+    if not ncomp or not seed.any():
+        return np.zeros_like(free)
+    votes = np.bincount(comp[seed], minlength=ncomp + 1)
+    votes[0] = 0
+    start = int(np.argmax(votes))
+    if gap > 0:
+        a, b = _radial_bridges(zmean, free, comp, grid.radius / grid.cell, grid.cell, gap,
+                               params.road_gap_level, params.road_gap_grade)
+        if len(a):
+            graph = csr_matrix((np.ones(len(a)), (a, b)), shape=(ncomp + 1, ncomp + 1))
+            _, group = connected_components(graph, directed=False)
+            return (comp > 0) & (group[comp] == group[start])
+    return comp == start
+
+
 def _ground_classes(xyz: np.ndarray, ground_level: float, params: GeometricParams) -> np.ndarray:
     """Road / sidewalk / terrain for ground points (see the module doc, step 4)."""
     radius = float(min(params.max_range, np.abs(xyz[:, :2]).max() + params.ground_cell))
@@ -238,16 +378,11 @@ def _ground_classes(xyz: np.ndarray, ground_level: float, params: GeometricParam
     occupied = count > 0
     step = _kerb_steps(zmean, params.kerb_step)
     free = occupied & ~step
-    comp, ncomp = ndimage.label(free, structure=np.ones((3, 3)))
     centre = (np.arange(grid.n) + 0.5) * grid.cell - radius
     cx, cy = np.meshgrid(centre, centre, indexing="ij")
     seed = free & (np.hypot(cx, cy) < params.road_seed_radius) \
         & (np.abs(zmean - ground_level) < 3 * params.kerb_step)
-    road = np.zeros_like(occupied)
-    if ncomp and seed.any():
-        votes = np.bincount(comp[seed], minlength=ncomp + 1)
-        votes[0] = 0
-        road = comp == int(np.argmax(votes))
+    road = _road_components(zmean, free, seed, params, grid)
     # ground not connected to the road: level with the nearest road nearby -> road,
     # above it -> sidewalk; rough -> terrain
     label = np.full(occupied.shape, SIDEWALK, np.uint16)
@@ -313,6 +448,29 @@ def scan_features(xyz: np.ndarray, intensity: np.ndarray | None = None,
     return index, voxel_features(pts, ground, height, rule)
 
 
+def _area_smoothed(shares: np.ndarray, xy: np.ndarray, radius: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """(best class column, its share) of ground voxels after averaging their class shares over
+    the ground voxels in a square of about 2 x ``radius`` metres around each: an area in metres,
+    where the nearest voxels are a sparse lidar's own ring (a ring apart is 1-3 m at 20-40 m)."""
+    cell = 0.5
+    half = max(1, int(round(radius / cell)))
+    ij = np.floor(xy / cell).astype(np.int64)
+    ij -= ij.min(axis=0)
+    shape = tuple(ij.max(axis=0) + 1)
+    flat = ij[:, 0] * shape[1] + ij[:, 1]
+    size = 2 * half + 1
+    total = np.zeros((shares.shape[1], *shape), np.float64)
+    for c in range(shares.shape[1]):
+        grid = np.bincount(flat, shares[:, c], minlength=shape[0] * shape[1]).reshape(shape)
+        total[c] = ndimage.uniform_filter(grid, size=size, mode="constant")
+    counts = np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape).astype(np.float64)
+    counts = ndimage.uniform_filter(counts, size=size, mode="constant")
+    mean = total.reshape(shares.shape[1], -1)[:, flat] / np.maximum(counts.ravel()[flat], 1e-12)
+    best = mean.argmax(axis=0)
+    return best, mean[best, np.arange(len(best))].astype(np.float32)
+
+
 def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
                params: GeometricParams | None = None, model: str | Path | None = None
                ) -> np.ndarray:
@@ -333,6 +491,23 @@ def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
         best, top = smoothed_best(shares, feats.neighbours, k)
     else:
         best, top = shares.argmax(axis=1), shares.max(axis=1)
+    if params.ground_smoothing > 0 and feats.ground.any():
+        pts = np.asarray(xyz, np.float64)[index]
+        count = np.bincount(feats.inverse).astype(np.float64)
+        xy = np.stack([np.bincount(feats.inverse, pts[:, a]) / count for a in (0, 1)], axis=1)
+        col = {int(c): i for i, c in enumerate(forest.classes)}
+        road, side, terr = col[ROAD], col[SIDEWALK], col[TERRAIN]
+        g = feats.ground & np.isin(best, (road, side, terr)) \
+            & (feats.values[:, 2] >= params.ground_smoothing_from)
+        paved = shares[g, road] + shares[g, side]
+        two = np.stack([paved, shares[g, terr]], axis=1)
+        gbest, gtop = _area_smoothed(two, xy[g], params.ground_smoothing)
+        best, top = best.copy(), top.copy()
+        # terrain or paved by the area; road or sidewalk by the voxel's own neighbours
+        own = np.where(shares[g, road] >= shares[g, side], road, side)
+        kept = np.where(np.isin(best[g], (road, side)), best[g], own)
+        best[g] = np.where(gbest == 1, terr, kept)
+        top[g] = gtop
     voxel_label = forest.classes[best]
     if params.min_share > 0:
         voxel_label = np.where(top >= params.min_share, voxel_label, 0)

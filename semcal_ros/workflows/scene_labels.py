@@ -9,6 +9,7 @@ through the true extrinsic are the ideal-label reference image.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +19,9 @@ from semcal_ros.engine.labels import (CITYSCAPES_ID, DEFAULT_ALIGNMENT, INVALID,
                                       VEHICLE_KITTI, moving_id_of)
 from semcal_ros.io.lidar_scans import read_point_labels, semantickitti_label_path
 from semcal_ros.segmentation.labellers import MODEL_FREE, make_labeller
+
+if TYPE_CHECKING:  # geometric.py loads numba: imported by the labeller when built
+    from semcal_ros.segmentation.geometric import GeometricParams
 
 #: ``cloud_labels`` values that are not a file: a labeller that needs no model, or the
 #: SemanticKITTI label files beside the scans.
@@ -39,7 +43,8 @@ def transfer_labels(target: np.ndarray, sources: list[np.ndarray], source_labels
 
 
 def label_scans(scan_paths: list[Path], clouds: list[LabelledCloud], cloud_labels: list[str],
-                poses: list[np.ndarray], label_distance: float = 0.3
+                poses: list[np.ndarray], label_distance: float = 0.3,
+                geometric: GeometricParams | None = None
                 ) -> tuple[list[LabelledCloud], str, list[str]]:
     """The scans with SemanticKITTI labels: a model-free labeller (``["geometric"]``),
     ``["semantickitti"]`` or one label file per scan. Returns the labelled scans, a description
@@ -51,7 +56,7 @@ def label_scans(scan_paths: list[Path], clouds: list[LabelledCloud], cloud_label
     """
     notes: list[str] = []
     if len(cloud_labels) == 1 and cloud_labels[0] in MODEL_FREE:
-        label = make_labeller(cloud_labels[0])
+        label = make_labeller(cloud_labels[0], geometric=geometric)
         out = [LabelledCloud(c.xyz, label(c.xyz, c.extra.get("intensity")), c.extra)
                for c in clouds]
         return out, f"{cloud_labels[0]} labeller", notes
