@@ -471,6 +471,29 @@ def _area_smoothed(shares: np.ndarray, xy: np.ndarray, radius: float
     return best, mean[best, np.arange(len(best))].astype(np.float32)
 
 
+def _paved_or_terrain(best: np.ndarray, top: np.ndarray, shares: np.ndarray,
+                      classes: np.ndarray, feats: VoxelFeatures, pts: np.ndarray,
+                      params: GeometricParams) -> tuple[np.ndarray, np.ndarray]:
+    """(best, top) with the ground voxels from ``ground_smoothing_from`` on whose best class is
+    road, sidewalk or terrain decided paved or terrain over their area (:func:`_area_smoothed`)
+    and road or sidewalk by their own neighbours, as before. ``pts``: the labelled points."""
+    col = {int(c): i for i, c in enumerate(classes)}
+    road, side, terr = col[ROAD], col[SIDEWALK], col[TERRAIN]
+    g = feats.ground & np.isin(best, (road, side, terr)) \
+        & (feats.values[:, 2] >= params.ground_smoothing_from)
+    if not g.any():
+        return best, top
+    count = np.bincount(feats.inverse).astype(np.float64)
+    xy = np.stack([np.bincount(feats.inverse, pts[:, a]) / count for a in (0, 1)], axis=1)
+    two = np.stack([shares[g, road] + shares[g, side], shares[g, terr]], axis=1)
+    area, area_top = _area_smoothed(two, xy[g], params.ground_smoothing)
+    own = np.where(shares[g, road] >= shares[g, side], road, side)
+    best, top = best.copy(), top.copy()
+    best[g] = np.where(area == 1, terr, np.where(np.isin(best[g], (road, side)), best[g], own))
+    top[g] = area_top
+    return best, top
+
+
 def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
                params: GeometricParams | None = None, model: str | Path | None = None
                ) -> np.ndarray:
@@ -491,23 +514,9 @@ def label_scan(xyz: np.ndarray, intensity: np.ndarray | None = None,
         best, top = smoothed_best(shares, feats.neighbours, k)
     else:
         best, top = shares.argmax(axis=1), shares.max(axis=1)
-    if params.ground_smoothing > 0 and feats.ground.any():
-        pts = np.asarray(xyz, np.float64)[index]
-        count = np.bincount(feats.inverse).astype(np.float64)
-        xy = np.stack([np.bincount(feats.inverse, pts[:, a]) / count for a in (0, 1)], axis=1)
-        col = {int(c): i for i, c in enumerate(forest.classes)}
-        road, side, terr = col[ROAD], col[SIDEWALK], col[TERRAIN]
-        g = feats.ground & np.isin(best, (road, side, terr)) \
-            & (feats.values[:, 2] >= params.ground_smoothing_from)
-        paved = shares[g, road] + shares[g, side]
-        two = np.stack([paved, shares[g, terr]], axis=1)
-        gbest, gtop = _area_smoothed(two, xy[g], params.ground_smoothing)
-        best, top = best.copy(), top.copy()
-        # terrain or paved by the area; road or sidewalk by the voxel's own neighbours
-        own = np.where(shares[g, road] >= shares[g, side], road, side)
-        kept = np.where(np.isin(best[g], (road, side)), best[g], own)
-        best[g] = np.where(gbest == 1, terr, kept)
-        top[g] = gtop
+    if params.ground_smoothing > 0:
+        best, top = _paved_or_terrain(best, top, shares, forest.classes, feats,
+                                      np.asarray(xyz, np.float64)[index], params)
     voxel_label = forest.classes[best]
     if params.min_share > 0:
         voxel_label = np.where(top >= params.min_share, voxel_label, 0)
