@@ -147,3 +147,16 @@ def test_sparse_config_file_gives_the_sparse_labels(tmp_path):
     lines = bad.stderr.strip().splitlines()
     assert len(lines) == 1 and "--cloud-config" in lines[0] and "Traceback" not in bad.stderr, \
         bad.stderr
+
+
+def test_sparse_preset_on_a_scan_with_no_ground_beyond_the_smoothing_range():
+    """A scan reaching 12 m only (no ground voxel from ground_smoothing_from on): labelled,
+    and its ground labels are those without the smoothing."""
+    from semcal_tools.precompile import labeller_scan
+
+    xyz = labeller_scan()
+    xyz = xyz[np.hypot(xyz[:, 0], xyz[:, 1]) < 12.0]
+    labels = label_scan(xyz, None, SPARSE)
+    no_smoothing = label_scan(xyz, None, GeometricParams(road_gap=SPARSE.road_gap))
+    assert (labels > 0).sum() > 1000
+    np.testing.assert_array_equal(labels, no_smoothing)
