@@ -11,6 +11,10 @@ seconds of each.
     python benchmarks/evidence_study.py run --scenes /work/scenes --sets kitti00_000556_esp \\
         "kitti00_000556_esp,kitti00_002224_esp,kitti00_003892_esp" --starts 0 1 2 --out F.jsonl
     python benchmarks/evidence_study.py table F.jsonl
+    python benchmarks/evidence_study.py compare --before A0.jsonl A1.jsonl --after B0.jsonl B1.jsonl
+
+(``run --seed 1`` repeats a study with the search's other seed; ``compare`` pairs runs by set,
+start and seed.)
 
 Scene folders: ``benchmarks/make_real_scenes.sh``.
 """
@@ -44,12 +48,12 @@ def run(args: argparse.Namespace) -> None:
 
     base = CalibrationParams.from_file(args.config)
     out = Path(args.out)
-    have = {(r["set"], r["start"]) for r in map(json.loads, out.read_text().splitlines())} \
-        if out.is_file() else set()
+    have = {(r["set"], r["start"], r.get("seed", 0))
+            for r in map(json.loads, out.read_text().splitlines())} if out.is_file() else set()
     for spec in args.sets:
         names = spec.split(",")
         for k in args.starts:
-            if (spec, k) in have:
+            if (spec, k, args.seed) in have:
                 continue
             folders = [Path(args.scenes) / n for n in names]
             truth = files.read_pose(folders[0] / "ground_truth.yaml")
@@ -57,7 +61,7 @@ def run(args: argparse.Namespace) -> None:
             frames = [load_frame(f, base) for f in folders]
             problems = [f.problem(start.translation) for f in frames]
             problem = problems[0] if len(problems) == 1 else FrameSet(problems)
-            row: dict = {"set": spec, "frames": len(names), "start": k,
+            row: dict = {"set": spec, "frames": len(names), "start": k, "seed": args.seed,
                          "engine": engine_commit(), "load": round(os.getloadavg()[0], 2)}
             t0, c0 = time.perf_counter(), time.process_time()
             try:
@@ -167,6 +171,45 @@ def table(args: argparse.Namespace) -> None:
               f"{totals['closefail']}")
 
 
+def compare(args: argparse.Namespace) -> None:
+    """Runs before and after a change, paired by set, start and seed, per source: medians, the
+    worst, how many moved by more than 2 cm either way, good verdicts, runs within 20 cm and
+    runs worse than 50 cm whose verdict is not failed. Give the runs of two or more seeds
+    (``run --seed``): on the real frames one seed's medians move by up to ~18 cm with the seed
+    alone (docs/segmentation.md), so a change is judged on the pooled runs."""
+    def load(files: list[str]) -> dict:
+        out = {}
+        for f in files:
+            for r in map(json.loads, Path(f).read_text().splitlines()):
+                if "translation_cm" in r:
+                    out[(r["set"], r["start"], r.get("seed", 0))] = r
+        return out
+
+    before, after = load(args.before), load(args.after)
+    groups: dict[str, list] = {}
+    for key in sorted(before.keys() & after.keys()):
+        groups.setdefault(source(key[0]), []).append((before[key], after[key]))
+    seeds = sorted({k[2] for k in before.keys() & after.keys()})
+    print(f"{sum(len(g) for g in groups.values())} paired runs, seeds {seeds}\n")
+    print("| source (runs) | before: median cm / deg (worst) | after | after better / worse by "
+          "> 2 cm | good verdicts | within 20 cm | > 50 cm and not failed |")
+    print("|---|---|---|---|---|---|---|")
+    for name, pairs in groups.items():
+        cols = []
+        for side in (0, 1):
+            rs = [p[side] for p in pairs]
+            err = [r["translation_cm"] for r in rs]
+            cols.append((f"{np.median(err):.1f} / {np.median([r['rotation_deg'] for r in rs]):.2f}"
+                         f" ({max(err):.0f})", sum(r["verdict"] == "good" for r in rs),
+                         sum(e <= 20 for e in err),
+                         sum(e > 50 and r["verdict"] != "failed" for e, r in zip(err, rs))))
+        better = sum(b["translation_cm"] < a["translation_cm"] - 2 for a, b in pairs)
+        worse = sum(b["translation_cm"] > a["translation_cm"] + 2 for a, b in pairs)
+        print(f"| {name} ({len(pairs)}) | {cols[0][0]} | {cols[1][0]} | {better} / {worse} | "
+              f"{cols[0][1]} -> {cols[1][1]} | {cols[0][2]} -> {cols[1][2]} | "
+              f"{cols[0][3]} -> {cols[1][3]} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -181,10 +224,14 @@ def main() -> None:
                         "same data shows how far results move by the search alone")
     t = sub.add_parser("table")
     t.add_argument("files", nargs="+")
+    c = sub.add_parser("compare", help="runs before and after a change, paired by set, start "
+                                       "and seed")
+    c.add_argument("--before", nargs="+", required=True, help="JSON lines files of `run`")
+    c.add_argument("--after", nargs="+", required=True)
     t.add_argument("--sigmas", nargs="+", type=float, default=[2.0],
                    help="evidence_sigmas to tabulate (the +- rescaled from the runs' sigma)")
     args = ap.parse_args()
-    run(args) if args.cmd == "run" else table(args)
+    {"run": run, "table": table, "compare": compare}[args.cmd](args)
 
 
 if __name__ == "__main__":
