@@ -122,7 +122,6 @@ labels = label_scan(labeller_scan())
 label_scan(labeller_scan(), None, GeometricParams(**SPARSE_LIDAR))
 kernels = {"_predict": forest._predict, "_relayout": forest._relayout,
            "smoothed_best": forest.smoothed_best, "_kerb_steps": geometric._kerb_steps,
-           "_free_components": geometric._free_components,
            "_radial_bridges": geometric._radial_bridges,
            "_eigen_features": point_features._eigen_features}
 for name, kernel in kernels.items():
@@ -149,8 +148,8 @@ def test_precompile_leaves_the_labeller_nothing_to_compile(tmp_path):
     out = subprocess.run([sys.executable, "-c", _FIRST_RUN], env=env, check=True,
                          capture_output=True, text=True, timeout=600).stdout
     lines = dict(line.split(" ", 1) for line in out.strip().splitlines())
-    for name in ("_predict", "_relayout", "smoothed_best", "_kerb_steps", "_free_components",
-                 "_radial_bridges", "_eigen_features"):
+    for name in ("_predict", "_relayout", "smoothed_best", "_kerb_steps", "_radial_bridges",
+                 "_eigen_features"):
         assert lines[name].endswith("misses 0"), out
         assert not lines[name].startswith("hits 0"), out
     assert int(lines["labelled"]) > 1000, out

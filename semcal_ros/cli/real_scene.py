@@ -35,6 +35,10 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the labeller loads numba: imported when a scan is labelled
+    from semcal_ros.segmentation.geometric import GeometricParams
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -147,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name.replace('_', '-')} must be positive, got "
                              f"{getattr(args, name)}")
     plans = plan_frames(args)  # every count and name checked before any reading
+    geometric = geometric_params(args)  # read and checked once, for every frame
     segment = load_segmenter(args)  # the network, once for every frame
     options = RealSceneOptions(d_max=args.d_max, voxel=args.voxel,
                                remove_vehicles=args.remove_vehicles,
@@ -159,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         if rig:
             print(f"frame {k + 1}/{len(plans)}: {plan.image} with {len(plan.scans)} scan(s) -> "
                   f"{plan.out}", flush=True)
-        inputs = gather_inputs(args, plan)
+        inputs = gather_inputs(args, plan, geometric)
         if rig:
             if shared_initial is None:
                 shared_initial = (inputs.initial if inputs.initial is not None
@@ -195,7 +200,7 @@ class FramePlan:
     out: Path
 
 
-def geometric_params(args: argparse.Namespace):
+def geometric_params(args: argparse.Namespace) -> GeometricParams | None:
     """``--cloud-config``'s labeller parameters (None without it: the labeller's defaults)."""
     if args.cloud_config is None:
         return None
@@ -283,9 +288,10 @@ def write_truth_overlay(scene: Path, out: Path | None = None) -> Path:
     return out
 
 
-def gather_inputs(args: argparse.Namespace, plan: FramePlan):
+def gather_inputs(args: argparse.Namespace, plan: FramePlan,
+                  geometric: GeometricParams | None = None):
     """Read and check every input of one frame (image, camera, extrinsic, scans, poses, point
-    labels)."""
+    labels; ``geometric``: the geometric labeller's parameters, None for its defaults)."""
     from semcal_ros.io import files, kitti
     from semcal_ros.io.calibration_files import read_calibration, read_extrinsic_yaml
     from semcal_ros.io.lidar_scans import read_lidar_scan, scan_poses_in_map
@@ -341,8 +347,7 @@ def gather_inputs(args: argparse.Namespace, plan: FramePlan):
         registered = [f"{len(clouds)} scans without poses: registered scan to scan (ICP), "
                       f"{np.linalg.norm(poses[-1][:3, 3]):.2f} m from the first to the last"]
     clouds, described, notes = label_scans(list(plan.scans), clouds, list(plan.cloud_labels),
-                                           poses, args.label_distance,
-                                           geometric_params(args))
+                                           poses, args.label_distance, geometric)
     notes = registered + list(notes)
     labeller = plan.cloud_labels[0] if list(plan.cloud_labels) in ([m] for m in MODEL_FREE) \
         else None

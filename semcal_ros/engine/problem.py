@@ -84,10 +84,10 @@ class Problem:
                              f"says {camera.width}x{camera.height}")
         if prepared is None and map_cloud is None:
             raise ValueError("a problem needs a map: a cloud or a prepared map")
-        if map_cloud is not None and prepared is None and len(map_cloud) and \
-                not np.all(np.isfinite(map_cloud.xyz)):
-            bad = int((~finite_rows(map_cloud.xyz)).sum())
-            raise ValueError(f"map contains {bad} NaN or infinite points")
+        if map_cloud is not None and prepared is None and len(map_cloud):
+            bad = len(map_cloud) - int(finite_rows(map_cloud.xyz).sum())
+            if bad:
+                raise ValueError(f"map contains {bad} NaN or infinite points")
         center = np.asarray(center, dtype=float)
         if center.shape != (3,) or not np.all(np.isfinite(center)):
             raise ValueError(f"crop centre must be 3 finite numbers, got {center}")

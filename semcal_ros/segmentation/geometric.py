@@ -258,52 +258,31 @@ def _kerb_steps(zmean, kerb_step):  # pragma: no cover - numba
     return step
 
 
-@nb.njit(cache=True, nogil=True)
-def _find(parent, a):  # pragma: no cover - numba
-    while parent[a] != a:
-        parent[a] = parent[parent[a]]
-        a = parent[a]
-    return a
-
-
-@nb.njit(cache=True, nogil=True)
-def _free_components(zmean, free, kerb_step):  # pragma: no cover - numba
-    """(labels 1..n of the kerb-free cells' components, 0 elsewhere; n). Cells join their free
-    8-neighbours, a diagonal one only when level with it within ``kerb_step``: a ring that
-    crosses a kerb at a slant steps diagonally from road to sidewalk, a step the 4-neighbour
-    kerb test does not see (joined over 8 neighbours without this test, such a ring made the
-    sidewalk road)."""
-    n0, n1 = zmean.shape
-    parent = np.arange(n0 * n1)
-    for i in range(n0 - 1):
-        for j in range(n1):
-            if not free[i, j]:
-                continue
-            a = i * n1 + j
-            if j + 1 < n1 and free[i, j + 1]:
-                ra, rb = _find(parent, a), _find(parent, a + 1)
-                parent[max(ra, rb)] = min(ra, rb)
-            if free[i + 1, j]:
-                ra, rb = _find(parent, a), _find(parent, a + n1)
-                parent[max(ra, rb)] = min(ra, rb)
-            for dj in (-1, 1):
-                jj = j + dj
-                if 0 <= jj < n1 and free[i + 1, jj] \
-                        and abs(zmean[i + 1, jj] - zmean[i, j]) <= kerb_step:
-                    ra, rb = _find(parent, a), _find(parent, (i + 1) * n1 + jj)
-                    parent[max(ra, rb)] = min(ra, rb)
+def _free_components(zmean: np.ndarray, free: np.ndarray, kerb_step: float
+                     ) -> tuple[np.ndarray, int]:
+    """(labels 1..n of the kerb-free cells' components in row-major order of their first cell,
+    0 elsewhere; n). Cells join their free 8-neighbours, a diagonal one only when level with it
+    within ``kerb_step``: a ring that crosses a kerb at a slant steps diagonally from road to
+    sidewalk, a step the 4-neighbour kerb test does not see (joined over 8 neighbours without
+    this test, such a ring made the sidewalk road)."""
+    n0, n1 = free.shape
+    cell = np.arange(n0 * n1).reshape(n0, n1)
+    z = np.where(free, zmean, np.nan)
+    links = [(free[:, :-1] & free[:, 1:], cell[:, :-1], cell[:, 1:]),
+             (free[:-1] & free[1:], cell[:-1], cell[1:]),
+             (np.abs(z[:-1, :-1] - z[1:, 1:]) <= kerb_step, cell[:-1, :-1], cell[1:, 1:]),
+             (np.abs(z[:-1, 1:] - z[1:, :-1]) <= kerb_step, cell[:-1, 1:], cell[1:, :-1])]
+    a = np.concatenate([first[ok] for ok, first, _ in links])
+    b = np.concatenate([second[ok] for ok, _, second in links])
+    graph = csr_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n0 * n1, n0 * n1))
+    _, group = connected_components(graph, directed=False)
+    members = cell[free]
+    found, first = np.unique(group[members], return_index=True)
+    rank = np.zeros(len(found), np.int64)
+    rank[np.argsort(first)] = np.arange(1, len(found) + 1)
     labels = np.zeros((n0, n1), np.int64)
-    index = np.zeros(n0 * n1, np.int64)
-    n = 0
-    for i in range(n0):
-        for j in range(n1):
-            if free[i, j]:
-                r = _find(parent, i * n1 + j)
-                if index[r] == 0:
-                    n += 1
-                    index[r] = n
-                labels[i, j] = index[r]
-    return labels, n
+    labels[free] = rank[np.searchsorted(found, group[members])]
+    return labels, len(found)
 
 
 @nb.njit(cache=True, nogil=True)
