@@ -148,3 +148,35 @@ def test_fisheye_draws_beside_and_behind_the_image_plane(world):
     assert radius.min() >= equidistant_radius(np.pi / 2, *fish.d) - 1e-9
     pin = make_view(camera(), pose, pmap.origin, 32.0, 8.0)
     assert len(reference.project_points(pmap, pin)[0]) < len(u)
+
+
+def test_largest_disc_is_an_angle_on_a_sharp_camera():
+    """``radius_max_deg``: the cap follows the focal length where it exceeds ``radius_max``, so
+    a near point's disc covers the same angle of view on a 1920 px camera as on a 1241 px one;
+    cameras at KITTI's focal length (about 720 px) keep the 8 px cap."""
+    from semcal_ros.engine.render.view import RenderParams, view_setup
+
+    rp = RenderParams(radius_max=8.0, radius_max_deg=0.6)
+    assert rp.radius_max_for(721.5) == 8.0  # 0.6 deg is 7.6 px there
+    assert rp.radius_max_for(2117.3) == pytest.approx(2117.3 * np.radians(0.6))
+    assert RenderParams(radius_max_deg=0.0).radius_max_for(2117.3) == 8.0  # 0: pixels alone
+    default = RenderParams()  # 0.43 deg: 8 px at a 1066 px focal length, 15.9 px on PJLab's
+    assert default.radius_max_for(721.5) == default.radius_max_for(480.0) == 8.0
+    assert default.radius_max_for(2117.3) == pytest.approx(15.89, abs=0.01)
+    cloud = _two_points_cloud(0.6, 8.0)  # a point 0.6 m ahead: its disc hits any cap
+    pmap = prepare_map(cloud, center=np.zeros(3))
+    pose = Pose.from_body_rpy_deg([0, 0, 0], [0, 0, 0])
+    widths = {}
+    for fx in (720.0, 2160.0):
+        cam = CameraModel(400, 300, np.array([[fx, 0, 199.5], [0, fx, 149.5], [0, 0, 1]]),
+                          np.zeros(5))
+        for deg in (0.0, 0.6):
+            setup = view_setup(cam, pmap, RenderParams(splat_lambda=200.0, radius_max_deg=deg,
+                                                       near=0.3))
+            row = reference.render(pmap, setup.view(pose))[150]
+            widths[fx, deg] = int((row == CITYSCAPES_ID["pole"]).sum())
+    assert widths[720.0, 0.0] == widths[720.0, 0.6] == 17  # 2 x 8 + 1
+    assert widths[2160.0, 0.0] == 17
+    assert widths[2160.0, 0.6] == 2 * int(np.floor(2160.0 * np.radians(0.6))) + 1  # 22 px
+    with pytest.raises(ValueError, match="radius_max_deg"):
+        RenderParams(radius_max_deg=-1.0)

@@ -24,6 +24,10 @@ class RenderParams:
     splat_lambda: float = 0.0  # disc radius px = splat_lambda / distance m; 0 = from the map
     splat_scale: float = 1.5  # with splat_lambda 0: disc radius = splat_scale x point spacing
     radius_max: float = 8.0  # px, full resolution
+    # deg: the largest disc as an angle of view; a camera with more pixels per degree than
+    # radius_max / radius_max_deg (1066 px focal length) gets proportionally larger discs
+    # (0 = radius_max alone); KITTI's and the catalogue's cameras keep radius_max
+    radius_max_deg: float = 0.43
     depth_falloff: float = 0.3  # depth factor at a disc's rim: nearest centre wins within a surface
     depth_falloff_coarse: float = 0.05  # the same for reduced-resolution stages (smoother basin)
     core_fraction: float = 1.0  # share of the disc radius that carries the label (rim: depth only)
@@ -39,6 +43,8 @@ class RenderParams:
             check_rule(f"render.{name}", getattr(self, name), getattr(self, name) >= 0, ">= 0")
         check_rule("render.splat_scale", self.splat_scale, self.splat_scale > 0, "> 0")
         check_rule("render.radius_max", self.radius_max, self.radius_max >= 1, ">= 1 px")
+        check_rule("render.radius_max_deg", self.radius_max_deg,
+                   0 <= self.radius_max_deg <= 5, "in [0, 5] deg")
         check_rule("render.core_fraction", self.core_fraction, 0 < self.core_fraction <= 1,
                "in (0, 1]")
         check_rule("render.near", self.near, 0 < self.near < self.far, f"in (0, far = {self.far})")
@@ -54,6 +60,14 @@ class RenderParams:
         if self.splat_lambda > 0:
             return self.splat_lambda
         return self.splat_scale * focal_px * max(point_spacing_m, 1e-3)
+
+    def radius_max_for(self, focal_px: float) -> float:
+        """The largest disc (px, full resolution) on a camera of this focal length: at least
+        ``radius_max``, and ``radius_max_deg`` of view. A pixel cap alone is a smaller angle on
+        a sharper camera: a sparse lidar's ground rings, whose discs hit the cap, then leave
+        holes on a 1920 px image that they close on a 1241 px one, and the holes reward a
+        view from too high (docs/engine.md "The largest disc")."""
+        return max(self.radius_max, focal_px * np.radians(self.radius_max_deg))
 
 
 @dataclass(frozen=True)
@@ -194,7 +208,7 @@ def view_setup(camera: CameraModel, pmap: PreparedMap, params: RenderParams | No
     """
     rp = params or RenderParams()
     cam = camera.scaled(scale)
-    radius_max = max(1.0, rp.radius_max / scale)
+    radius_max = max(1.0, rp.radius_max_for(camera.fx) / scale)
     return ViewSetup(
         camera=cam, origin=pmap.origin,
         splat_lambda=rp.splat_lambda_for(pmap.spacing, camera.fx) / scale,
