@@ -47,6 +47,67 @@ def test_the_kernel_equals_the_reference(kind):
     assert got[0] == pytest.approx(ref[0], rel=1e-9) and got[1] == pytest.approx(ref[1])
 
 
+@pytest.mark.parametrize("kind", ["likelihood", "mi"])
+@pytest.mark.parametrize("soft", [False, True])
+def test_the_kernel_equals_the_reference_with_the_blind_zone_left_out(kind, soft):
+    rng = np.random.default_rng(2)
+    t = _street()
+    r = _render(t, 2)
+    noise = rng.random(t.shape) < 0.1
+    r[noise] = rng.choice([ROAD, BUILDING, VEG, INVALID], int(noise.sum()))
+    r[70:, :] = INVALID  # the lidar's blind zone ...
+    r[:, 100:] = INVALID  # ... and columns it draws nothing in
+    probs = None
+    if soft:
+        probs = rng.random(t.shape + (19,)).astype(np.float32)
+        probs /= probs.sum(axis=-1, keepdims=True)
+    for crop in (0.0, 0.2):
+        params = LossParams(kind=kind, blind_rows=0.4, crop_top=crop)
+        got = LabelLoss(t, params, probabilities=probs).evaluate(r)
+        ref = loss_reference(r, t, None, params, probabilities=probs)
+        assert got[0] == pytest.approx(ref[0], rel=1e-9) and got[1] == pytest.approx(ref[1])
+        counted = LabelLoss(t, replace(params, blind_rows=0.0),
+                            probabilities=probs).evaluate(r)
+        assert got[1] == counted[1]  # the coverage still counts every scene pixel
+        assert got[0] != pytest.approx(counted[0])
+
+
+def test_below_map_mask_marks_what_lies_under_the_lowest_drawn_pixel_of_each_column():
+    from semcal_ros.engine.loss.likelihood import below_map_mask
+
+    r = np.full((6, 3), INVALID, np.uint8)
+    r[1, 0] = ROAD  # column 0: drawn down to row 1
+    r[[2, 4], 1] = ROAD  # column 1: down to row 4 (a hole at row 3 stays counted)
+    mask = below_map_mask(r)  # column 2: nothing drawn, all of it below the map
+    np.testing.assert_array_equal(mask[:, 0], [0, 0, 1, 1, 1, 1])
+    np.testing.assert_array_equal(mask[:, 1], [0, 0, 0, 0, 0, 1])
+    assert mask[:, 2].all()
+    half = below_map_mask(r, 0.5)  # only the lowest 3 of 6 rows may be left out
+    np.testing.assert_array_equal(half[:, 0], [0, 0, 0, 1, 1, 1])
+    np.testing.assert_array_equal(half[:, 2], [0, 0, 0, 1, 1, 1])
+
+
+def test_a_view_from_too_high_wins_on_the_blind_zone_unless_it_is_left_out():
+    """The map of a top-mounted lidar stops short of the camera's nearest road (no beam reaches
+    it). Counted as nothing drawn, that road rewards a view that stretches the map's ground over
+    it, though the building then lies on the sky and the road on the building; left out, the
+    truth wins."""
+    h, w = 60, 40
+    t = np.full((h, w), SKY, np.uint8)
+    t[10:30] = BUILDING
+    t[30:] = ROAD
+    truth = np.full((h, w), INVALID, np.uint8)
+    truth[10:30] = BUILDING
+    truth[30:45] = ROAD  # rows 45-59: the blind zone
+    high = np.full((h, w), INVALID, np.uint8)
+    high[8:28] = BUILDING
+    high[28:] = ROAD
+    counted = LabelLoss(t, LossParams(em=False, boundary_band_px=0.0))
+    left_out = LabelLoss(t, LossParams(em=False, boundary_band_px=0.0, blind_rows=0.3))
+    assert counted(high) < counted(truth)
+    assert left_out(truth) < left_out(high)
+
+
 def test_swapped_classes_cost_under_the_likelihood_but_not_under_mi():
     """MI sees only how informative the rendered class is of the label: drawing road where the
     labels say building and building where they say road is as good as the truth. The
@@ -125,6 +186,8 @@ def test_loss_parameters_are_checked():
         LossParams(em_prior_pixels=0.0)
     with pytest.raises(ValueError, match="em_agreement"):
         LossParams(em_agreement=(0.9, 0.8))
+    with pytest.raises(ValueError, match="blind_rows"):
+        LossParams(blind_rows=0.8)
 
 
 def test_the_default_is_the_likelihood_and_the_paper_loss_file_selects_l2():

@@ -242,8 +242,17 @@ def test_pjlab_kdt_calib_txt(tmp_path, capsys):
     assert code == 1 and "label image not found" in err and err.count("\n") == 1
     code, _, err = run(["--image", folder / "calib.jpg", "--scans", folder / "calib.pcd",
                         "--calib", folder / "calib.txt", "--cloud-labels", label_file,
-                        "--truth-labels", "--out", out], capsys)
+                        "--truth-labels", "--blind-rows", "0.7", "--out", out], capsys)
+    assert code == 1 and "--blind-rows must be in [0, 0.5], got 0.7" in err
+    assert err.count("\n") == 1 and not out.exists()
+    code, _, err = run(["--image", folder / "calib.jpg", "--scans", folder / "calib.pcd",
+                        "--calib", folder / "calib.txt", "--cloud-labels", label_file,
+                        "--truth-labels", "--blind-rows", "0.2", "--out", out], capsys)
     assert code == 0, err
+    from semcal_ros.engine.params import CalibrationParams
+
+    # a top-mounted lidar's blind zone: the scene's calibrator.yaml leaves it out of the loss
+    assert CalibrationParams.from_file(out / "calibrator.yaml").loss.blind_rows == 0.2
     values = {line.split(":")[0]: np.array(line.split(":")[1].split(), float)
               for line in (folder / "calib.txt").read_text().splitlines() if ":" in line}
     t = np.eye(4)

@@ -126,6 +126,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "the initial pose (default 5: the search's pitch bound)")
     p.add_argument("--crop-radius", type=float, default=0.0,
                    help="> 0: render.crop_radius (m) in calibrator.yaml")
+    p.add_argument("--blind-rows", type=float, default=0.0, metavar="SHARE",
+                   help="> 0: loss.blind_rows in calibrator.yaml: a top-mounted lidar whose "
+                        "nearest ground lies beyond what the camera sees (e.g. 0.2; "
+                        "docs/engine.md 'The lidar's blind zone')")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of initial.yaml's perturbation (one pose for every frame)")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0: all cores)")
@@ -150,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be positive, got "
                              f"{getattr(args, name)}")
+    if not 0.0 <= args.blind_rows <= 0.5:
+        raise ValueError(f"--blind-rows must be in [0, 0.5], got {args.blind_rows}")
     plans = plan_frames(args)  # every count and name checked before any reading
     geometric = geometric_params(args)  # read and checked once, for every frame
     segment = load_segmenter(args)  # the network, once for every frame
@@ -157,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
                                remove_vehicles=args.remove_vehicles,
                                merge_road_sidewalk=not args.keep_sidewalk,
                                crop_margin_deg=args.crop_margin_deg,
-                               crop_radius=args.crop_radius, seed=args.seed)
+                               crop_radius=args.crop_radius, blind_rows=args.blind_rows,
+                               seed=args.seed)
     rig = len(plans) > 1
     shared_initial = None  # several frames: the first frame's initial pose, for every frame
     for k, plan in enumerate(plans):

@@ -97,6 +97,7 @@ class RealSceneOptions:
     merge_road_sidewalk: bool = True
     crop_margin_deg: float = 5.0  # pitch margin of the crop_top row (the search's pitch bound)
     crop_radius: float = 0.0  # > 0: render.crop_radius in calibrator.yaml (m)
+    blind_rows: float = 0.0  # > 0: loss.blind_rows in calibrator.yaml (the lidar's blind zone)
     seed: int = 0  # initial.yaml's perturbation
     kind: str = "real"
     camera_name: str = "camera"
@@ -221,6 +222,8 @@ def derived_engine_settings(map_cloud: LabelledCloud, camera: CameraModel, initi
     """The ``engine:`` group this sensor pair needs, from the data and the initial guess."""
     engine: dict = {"loss": {"crop_top": reachable_crop_top(map_cloud, camera, initial,
                                                             options.crop_margin_deg)}}
+    if options.blind_rows > 0:
+        engine["loss"]["blind_rows"] = options.blind_rows
     labels: dict = {}
     if options.merge_road_sidewalk:
         labels["merge"] = ["sidewalk:road"]

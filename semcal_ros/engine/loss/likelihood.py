@@ -55,19 +55,50 @@ def likelihood_reference(rendered: np.ndarray, target: np.ndarray, params: LossP
     scene = ok & (t != SKY)
     n_scene = int(scene.sum())
     coverage = float((scene & (r != INVALID)).sum()) / n_scene if n_scene else 0.0
-    rows = np.where(r == INVALID, N_CLASSES, r)[ok]
-    joint = np.zeros((N_CLASSES + 1, N_CLASSES))
-    if probabilities is None:
-        np.add.at(joint, (rows, t[ok]), 1.0)
-    else:
-        q = probabilities[top:].reshape(-1, N_CLASSES)[ok]
-        np.add.at(joint, rows, q)
+    def histogram(keep: np.ndarray) -> np.ndarray:
+        rows = np.where(r == INVALID, N_CLASSES, r)[keep]
+        joint = np.zeros((N_CLASSES + 1, N_CLASSES))
+        if probabilities is None:
+            np.add.at(joint, (rows, t[keep]), 1.0)
+        else:
+            np.add.at(joint, rows, probabilities[top:].reshape(-1, N_CLASSES)[keep])
+        return joint
+
+    joint = histogram(ok)
+    # H(T) is always over every valid pixel; left-out pixels leave only the histogram
+    h_all = _label_entropy(joint)
+    if params.blind_rows > 0:
+        joint = histogram(ok & ~below_map_mask(rendered, params.blind_rows)[top:].ravel())
     if joint.sum() == 0 or coverage < params.min_coverage:
         return params.degenerate_loss, coverage
+    scale = _label_entropy(joint) / h_all if h_all > 0 else 0.0
     if params.kind == "likelihood":
         return likelihood_share(joint, confusion_prior(params.confusion_weight),
-                                params.prior_weight), coverage
-    return conditional_entropy_share(joint), coverage
+                                params.prior_weight) * scale, coverage
+    return conditional_entropy_share(joint) * scale, coverage
+
+
+def _label_entropy(joint: np.ndarray) -> float:
+    """H(T) of a joint histogram's label columns."""
+    cols = np.asarray(joint, float).sum(axis=0)
+    n = cols.sum()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return float(-np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n) if n else 0.0
+
+
+def below_map_mask(rendered: np.ndarray, blind_rows: float = 1.0) -> np.ndarray:
+    """bool (H, W): in the lowest ``blind_rows`` share of the rows, the pixels below the lowest
+    one the map draws in their column (a column it draws nothing in: all of them).
+    ``loss.blind_rows`` leaves them out of the likelihood's histogram: a lidar sees no ground
+    closer than its lowest beam reaches (a top-mounted one: 5-9 m ahead), the camera does, and
+    counting that road as "nothing drawn" rewards a view from too high that spreads the map's
+    nearest rings over it. The share bounds what a view can leave out: drawn high in the image
+    (from too low), the map would otherwise leave half the image out of the judgement."""
+    drawn = np.asarray(rendered) != INVALID
+    h = drawn.shape[0]
+    lowest = np.where(drawn.any(axis=0), h - 1 - np.argmax(drawn[::-1], axis=0), -1)
+    rows = np.arange(h)[:, None]
+    return (rows > lowest[None, :]) & (rows >= h - int(round(blind_rows * h)))
 
 
 def confusion_prior(confusion_weight: float) -> np.ndarray:
@@ -156,11 +187,20 @@ _NO_COSTS = np.zeros((1, 1), np.uint16)  # the pixel kernel's unused argument
 
 
 @numba.njit(cache=True, nogil=True)
-def _joint_kernel(rendered, target, start, joint, probabilities, soft):
+def _joint_kernel(rendered, target, start, joint, probabilities, soft, width, blind_from):
     """The joint histogram of rendered (row N_CLASSES = nothing rendered) and labelled classes
-    over the valid target pixels, soft (``probabilities[p]``) or by the target class."""
+    over the valid target pixels, soft (``probabilities[p]``) or by the target class. Pixels
+    from row ``blind_from`` on (of rows ``width`` wide) that lie below the lowest one the map
+    draws in their column are left out of the histogram, not of the coverage
+    (:func:`below_map_mask`)."""
     n_scene = 0
     n_covered = 0
+    n_rows = target.shape[0] // width
+    lowest = np.full(width, -1, np.int64)
+    if blind_from < n_rows:
+        for p in range(target.shape[0]):
+            if rendered[p] != INVALID:
+                lowest[p % width] = p // width
     for p in range(start, target.shape[0]):
         t = target[p]
         if t == INVALID:
@@ -170,6 +210,9 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft):
             n_scene += 1
             if r != INVALID:
                 n_covered += 1
+        row_p = p // width
+        if row_p >= blind_from and row_p > lowest[p % width]:
+            continue
         row = N_CLASSES if r == INVALID else r
         if soft:
             for k in range(N_CLASSES):
@@ -225,7 +268,9 @@ class LikelihoodCost:
         # H(T) over the (fixed) valid pixels: the normaliser of H(T | R)
         joint = np.zeros((N_CLASSES + 1, N_CLASSES))
         _joint_kernel(np.full(target.shape, INVALID, np.uint8), target, start, joint,
-                      self.probabilities, self.soft)
+                      self.probabilities, self.soft, shape[1], shape[0])
+        # the first row whose pixels may lie in the lidar's blind zone
+        self.blind_from = shape[0] - int(round(params.blind_rows * shape[0]))
         cols = joint.sum(axis=0)
         n = cols.sum()
         self.h_target = float(-np.sum(np.where(cols > 0, cols * np.log(
@@ -234,7 +279,8 @@ class LikelihoodCost:
     def _joint(self, flat: np.ndarray) -> tuple[np.ndarray, int, int]:
         joint = np.zeros((N_CLASSES + 1, N_CLASSES))
         n_scene, n_covered = _joint_kernel(flat, self.target, self.start, joint,
-                                           self.probabilities, self.soft)
+                                           self.probabilities, self.soft, self.shape[1],
+                                           self.blind_from)
         return joint, n_scene, n_covered
 
     def freeze(self, flat: np.ndarray) -> None:

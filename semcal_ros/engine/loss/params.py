@@ -57,6 +57,11 @@ class LossParams:
     # a real segmenter's confusions; above: the learned costs alone, as sharp as L2 on clean
     # labels). Measured agreement: real frames 0.38-0.82, synthetic labels 0.93-0.99
     em_agreement: tuple[float, float] = (0.84, 0.90)
+    # likelihood: in this share of the image's rows from the bottom, the pixels below the lowest
+    # one the map draws in their column are left out of the histogram (the lidar's blind zone
+    # near its mount is no evidence; likelihood.below_map_mask); 0 = counted as nothing drawn.
+    # Bounded, so a view that draws the map high in the image cannot leave most of it out
+    blind_rows: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in LOSS_KINDS:
@@ -87,6 +92,8 @@ class LossParams:
         if not 0.0 <= lo < hi <= 1.0:
             raise ValueError(f"loss.em_agreement must be [low, high] with 0 <= low < high <= 1, "
                              f"got {list(self.em_agreement)}")
+        if not 0.0 <= self.blind_rows <= 0.5:
+            raise ValueError(f"loss.blind_rows must be in [0, 0.5], got {self.blind_rows}")
         if not 0.0 <= self.boundary_band_px <= 50.0:
             raise ValueError(f"loss.boundary_band_px must be in [0, 50], got "
                              f"{self.boundary_band_px}")
