@@ -192,16 +192,28 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft, width, bl
     over the valid target pixels, soft (``probabilities[p]``) or by the target class. Pixels
     from row ``blind_from`` on (of rows ``width`` wide) that lie below the lowest one the map
     draws in their column are left out of the histogram, not of the coverage
-    (:func:`below_map_mask`)."""
-    n_scene = 0
-    n_covered = 0
-    n_rows = target.shape[0] // width
+    (:func:`below_map_mask`). Returns (scene pixels, those covered)."""
+    n = target.shape[0]
+    stop = max(start, min(blind_from * width, n))  # the rows no pixel is left out of
     lowest = np.full(width, -1, np.int64)
-    if blind_from < n_rows:
-        for p in range(target.shape[0]):
+    if stop < n:
+        for p in range(n):
             if rendered[p] != INVALID:
                 lowest[p % width] = p // width
-    for p in range(start, target.shape[0]):
+    n_scene, n_covered = _joint_rows(rendered, target, start, stop, joint, probabilities, soft,
+                                     width, lowest, False)
+    s2, c2 = _joint_rows(rendered, target, stop, n, joint, probabilities, soft, width, lowest,
+                         True)
+    return n_scene + s2, n_covered + c2
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _joint_rows(rendered, target, first, end, joint, probabilities, soft, width, lowest, blind):
+    """:func:`_joint_kernel` over pixels ``first`` to ``end``; ``blind``: leave out those below
+    ``lowest`` in their column (a loop of its own, so the usual one does no division)."""
+    n_scene = 0
+    n_covered = 0
+    for p in range(first, end):
         t = target[p]
         if t == INVALID:
             continue
@@ -210,8 +222,7 @@ def _joint_kernel(rendered, target, start, joint, probabilities, soft, width, bl
             n_scene += 1
             if r != INVALID:
                 n_covered += 1
-        row_p = p // width
-        if row_p >= blind_from and row_p > lowest[p % width]:
+        if blind and p // width > lowest[p % width]:
             continue
         row = N_CLASSES if r == INVALID else r
         if soft:
