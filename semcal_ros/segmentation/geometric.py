@@ -117,7 +117,6 @@ class GeometricParams:
             raise ValueError("parameter 'geometric.min_share' must be in 0..1")
 
 
-@functools.lru_cache(maxsize=2)
 def params_from_file(path: str | Path | None) -> GeometricParams:
     """The labeller's parameters: the defaults, with the ``geometric`` group of a
     ``cloud_segmenter`` params file over them (None: the defaults). Unknown keys and bad values
@@ -130,6 +129,7 @@ def params_from_file(path: str | Path | None) -> GeometricParams:
     return apply_flat(params, load_node_group(path, "cloud_segmenter", "geometric"))
 
 
+@functools.lru_cache(maxsize=2)
 def load_model(path: str = str(MODEL_FILE)) -> Forest:
     """The point labeller's forest (read once per process)."""
     return Forest.load(path, FEATURE_NAMES)
