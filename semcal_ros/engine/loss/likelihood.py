@@ -79,7 +79,8 @@ def likelihood_reference(rendered: np.ndarray, target: np.ndarray, params: LossP
 
 
 def _label_entropy(joint: np.ndarray) -> float:
-    """H(T) of a joint histogram's label columns."""
+    """H(T) of a joint histogram's label columns (0 for an empty one): the normaliser of every
+    histogram loss here."""
     cols = np.asarray(joint, float).sum(axis=0)
     n = cols.sum()
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -125,11 +126,10 @@ def likelihood_share(joint: np.ndarray, prior: np.ndarray, weight: float) -> flo
     which class matches which)."""
     joint = np.asarray(joint, float)
     n = joint.sum()
-    cols = joint.sum(axis=0)
     conf = shrunk_confusion(joint, prior, weight)
     with np.errstate(divide="ignore", invalid="ignore"):
         cost = -np.sum(np.where(joint > 0, joint * np.log(np.where(joint > 0, conf, 1.0)), 0.0))
-        h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
+    h_t = _label_entropy(joint)
     return float(cost / n / h_t) if h_t > 0 else 0.0
 
 
@@ -174,10 +174,9 @@ def conditional_entropy_share(joint: np.ndarray) -> float:
     joint = np.asarray(joint, float)
     n = joint.sum()
     rows = joint.sum(axis=1, keepdims=True)
-    cols = joint.sum(axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         h_cond = -np.sum(np.where(joint > 0, joint * np.log(joint / rows), 0.0)) / n
-        h_t = -np.sum(np.where(cols > 0, cols * np.log(cols / n), 0.0)) / n
+    h_t = _label_entropy(joint)
     return float(h_cond / h_t) if h_t > 0 else 0.0
 
 
@@ -282,10 +281,7 @@ class LikelihoodCost:
                       self.probabilities, self.soft, shape[1], shape[0])
         # the first row whose pixels may lie in the lidar's blind zone
         self.blind_from = shape[0] - int(round(params.blind_rows * shape[0]))
-        cols = joint.sum(axis=0)
-        n = cols.sum()
-        self.h_target = float(-np.sum(np.where(cols > 0, cols * np.log(
-            np.where(cols > 0, cols, 1.0) / max(n, 1.0)), 0.0)) / max(n, 1.0))
+        self.h_target = _label_entropy(joint)
 
     def _joint(self, flat: np.ndarray) -> tuple[np.ndarray, int, int]:
         joint = np.zeros((N_CLASSES + 1, N_CLASSES))
