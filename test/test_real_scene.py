@@ -62,6 +62,16 @@ def height_labels(xyz: np.ndarray) -> np.ndarray:
                              KITTI_ID["building"])).astype(np.uint16)
 
 
+def ground_band_labels(xyz: np.ndarray) -> np.ndarray:
+    """Road within 0.3 m of the ground under the lidar (the median height of the returns more
+    than 15 deg down, all ground on PJLab's frames), building above: a lidar's near ground
+    rings labelled as a ground segmenter would."""
+    steep = np.arctan2(xyz[:, 2], np.hypot(xyz[:, 0], xyz[:, 1])) < -np.radians(15.0)
+    ground = np.median(xyz[steep, 2])
+    return np.where(xyz[:, 2] < ground + 0.3, KITTI_ID["road"],
+                    KITTI_ID["building"]).astype(np.uint16)
+
+
 def check_scene(out: Path, width: int, height: int, t_cam_lidar: np.ndarray) -> dict:
     """The contract's files, labels.png size, ground truth = inverse of the extrinsic (1e-6)."""
     for name in ("map.ply", "labels.png", "image.png", "camera_info.yaml", "ground_truth.yaml",
@@ -106,6 +116,10 @@ def test_kitti_odometry_two_scans_semantickitti_parked_cars_stay(tmp_path, capsy
     # HDL-64E: nothing above ~+2 deg (near poles and signs reach higher), seen from the
     # initial pose, less a 5 deg pitch margin
     assert 0.02 < params.loss.crop_top < 0.3
+    # the HDL-64E's rings lie a fraction of a degree apart on the ground: no blind zone
+    assert params.loss.blind_rows == 0.0 and "loss.blind_rows" not in printed
+    gap = float(printed.split("near ground rings ahead: at most ")[1].split(" deg")[0])
+    assert 0.1 < gap < 1.0, printed
     labels = files.read_label_image(out / "labels.png")
     rows = np.flatnonzero((labels != INVALID).any(axis=1))
     assert rows.min() > params.loss.crop_top * 376  # the crop leaves every labelled row in
@@ -234,7 +248,7 @@ def test_pjlab_kdt_calib_txt(tmp_path, capsys):
     folder = PJLAB / "ours1"
     cloud = read_lidar_scan(folder / "calib.pcd")
     label_file = tmp_path / "calib.label"
-    height_labels(cloud.xyz).astype("<u4").tofile(label_file)
+    ground_band_labels(cloud.xyz).astype("<u4").tofile(label_file)
     out = tmp_path / "scene"
     code, _, err = run(["--image", folder / "calib.jpg", "--scans", folder / "calib.pcd",
                         "--calib", folder / "calib.txt", "--cloud-labels", label_file,
@@ -245,13 +259,13 @@ def test_pjlab_kdt_calib_txt(tmp_path, capsys):
                         "--truth-labels", "--blind-rows", "0.7", "--out", out], capsys)
     assert code == 1 and "--blind-rows must be in [0, 0.5], got 0.7" in err
     assert err.count("\n") == 1 and not out.exists()
-    code, _, err = run(["--image", folder / "calib.jpg", "--scans", folder / "calib.pcd",
-                        "--calib", folder / "calib.txt", "--cloud-labels", label_file,
-                        "--truth-labels", "--blind-rows", "0.2", "--out", out], capsys)
+    code, printed, err = run(["--image", folder / "calib.jpg", "--scans", folder / "calib.pcd",
+                              "--calib", folder / "calib.txt", "--cloud-labels", label_file,
+                              "--truth-labels", "--out", out], capsys)
     assert code == 0, err
-    from semcal_ros.engine.params import CalibrationParams
-
-    # a top-mounted lidar's blind zone: the scene's calibrator.yaml leaves it out of the loss
+    # a top-mounted lidar whose lowest rings lie 6 and 5 deg apart (-24.9, -18.9, -14 deg): its
+    # blind zone is found in the data and left out of the loss by the scene's calibrator.yaml
+    assert "near ground rings ahead: at most 6.0 deg apart -> loss.blind_rows 0.2" in printed
     assert CalibrationParams.from_file(out / "calibrator.yaml").loss.blind_rows == 0.2
     values = {line.split(":")[0]: np.array(line.split(":")[1].split(), float)
               for line in (folder / "calib.txt").read_text().splitlines() if ":" in line}
@@ -415,3 +429,46 @@ def test_parked_vehicle_mapping_counts_cars_and_drops_moving_ones():
     assert parked.image_lut()[CITYSCAPES_ID["car"]] == CITYSCAPES_ID["car"]
     assert parked.lidar_lut()[moving] == INVALID  # moving vehicles never enter a map
     assert parked.image_lut()[CITYSCAPES_ID["person"]] == INVALID  # people stay dynamic
+
+
+def ground_rings(elevations_deg, height: float = 2.0, azimuth_deg=(-60.0, 60.0)) -> LabelledCloud:
+    """Flat road sampled by lidar rings at the given elevations, seen from ``height`` m."""
+    az = np.radians(np.arange(*azimuth_deg, 0.2))
+    xyz = []
+    for e in elevations_deg:
+        r = height / np.tan(np.radians(-e))
+        xyz.append(np.c_[r * np.cos(az), r * np.sin(az), np.full(len(az), -height)])
+    xyz = np.vstack(xyz)
+    return LabelledCloud(xyz, np.full(len(xyz), KITTI_ID["road"], np.uint16))
+
+
+def test_the_blind_zone_is_found_where_the_near_ground_rings_lie_far_apart():
+    from semcal_ros.engine.camera import CameraModel
+    from semcal_ros.engine.pose import Pose
+    from semcal_ros.workflows.real_scene import (RealSceneOptions, derived_engine_settings,
+                                                 near_ground_gap_deg)
+
+    k = np.array([[2100.0, 0, 960], [0, 2100.0, 600], [0, 0, 1]])
+    camera = CameraModel(1920, 1200, k, np.zeros(5))
+    ahead = Pose.from_body_rpy_deg([0.1, 0.0, -0.1], [0.0, 8.0, 0.0])  # looking along +x, down
+    behind = Pose.from_body_rpy_deg([0.1, 0.0, -0.1], [0.0, 8.0, 180.0])
+    dense = ground_rings(np.arange(-24.9, -2.0, 0.4))  # an HDL-64E's lower block
+    # PJLab's lidar: -24.9, -18.9, then 1 deg apart from -14 to -6 (docs/segmentation.md)
+    sparse = ground_rings([-24.9, -18.9, *np.arange(-14.0, -5.5, 1.0)])
+    assert near_ground_gap_deg(dense, camera, ahead) == pytest.approx(0.4, abs=0.01)
+    assert near_ground_gap_deg(sparse, camera, ahead) == pytest.approx(6.0, abs=0.01)
+    # sparse rings behind the camera, dense ones ahead: what the camera looks at decides
+    mixed = LabelledCloud(np.vstack([dense.xyz, -sparse.xyz * [1, 1, -1]]),
+                          np.concatenate([dense.label, sparse.label]))
+    assert near_ground_gap_deg(mixed, camera, ahead) == pytest.approx(0.4, abs=0.01)
+    assert near_ground_gap_deg(mixed, camera, behind) == pytest.approx(6.0, abs=0.01)
+    # no ground in view (too few points to judge): no blind zone
+    few = LabelledCloud(sparse.xyz[:20], sparse.label[:20])
+    assert near_ground_gap_deg(few, camera, ahead) == 0.0
+
+    def blind(cloud, **options):
+        engine = derived_engine_settings(cloud, camera, ahead, RealSceneOptions(**options))
+        return engine["loss"].get("blind_rows", 0.0)
+
+    assert blind(dense) == 0.0 and blind(sparse) == 0.2
+    assert blind(sparse, blind_rows=0.0) == 0.0 and blind(dense, blind_rows=0.3) == 0.3

@@ -126,10 +126,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "the initial pose (default 5: the search's pitch bound)")
     p.add_argument("--crop-radius", type=float, default=0.0,
                    help="> 0: render.crop_radius (m) in calibrator.yaml")
-    p.add_argument("--blind-rows", type=float, default=0.0, metavar="SHARE",
-                   help="> 0: loss.blind_rows in calibrator.yaml: a top-mounted lidar whose "
-                        "nearest ground lies beyond what the camera sees (e.g. 0.2; "
-                        "docs/engine.md 'The lidar's blind zone')")
+    p.add_argument("--blind-rows", type=float, default=None, metavar="SHARE",
+                   help="loss.blind_rows in calibrator.yaml (0: none). Default: from the data, "
+                        "0.2 where the lidar's near ground rings ahead of the camera lie more "
+                        "than 2 deg apart (a top-mounted lidar such as PJLab's), else none "
+                        "(docs/engine.md 'The lidar's blind zone')")
     p.add_argument("--seed", type=int, default=0,
                    help="seed of initial.yaml's perturbation (one pose for every frame)")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0: all cores)")
@@ -154,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         if not getattr(args, name) > 0:
             raise ValueError(f"--{name.replace('_', '-')} must be positive, got "
                              f"{getattr(args, name)}")
-    if not 0.0 <= args.blind_rows <= 0.5:
+    if args.blind_rows is not None and not 0.0 <= args.blind_rows <= 0.5:
         raise ValueError(f"--blind-rows must be in [0, 0.5], got {args.blind_rows}")
     plans = plan_frames(args)  # every count and name checked before any reading
     geometric = geometric_params(args)  # read and checked once, for every frame
@@ -418,6 +419,9 @@ def print_report(out: Path, inputs, report, command: bool = True) -> None:
     print(f"  removed from the map: {report.removed_points} points ({removed})")
     print(f"  map label shares: {shares(report.map_shares)}")
     print(f"  image label shares (labelled pixels): {shares(report.image_shares)}")
+    blind = report.engine.get("loss", {}).get("blind_rows", 0.0)
+    print(f"  near ground rings ahead: at most {report.ground_gap_deg:.1f} deg apart"
+          + (f" -> loss.blind_rows {blind:g}" if blind else ""))
     print(f"  calibrator.yaml engine: {report.engine}")
     if not command:
         print(f"  {report.seconds:.1f} s")

@@ -20,7 +20,9 @@ on another day has other parked cars than the image).
 guess only: ``loss.crop_top`` leaves out the image rows above the highest map point the camera can
 see from the initial pose, less a margin of the search's pitch bound; road and sidewalk are merged
 (neither a lidar labeller nor an image segmenter draws that border reliably: the paper merged them
-on KITTI).
+on KITTI); ``loss.blind_rows`` is written where the lidar's rings lie far apart on the ground the
+camera looks at (:func:`near_ground_gap_deg`): there the road between and below them is not
+drawn, yet it is there, and the likelihood would count it as "nothing drawn".
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ import yaml
 
 from semcal_ros.engine.camera import CameraModel
 from semcal_ros.engine.cloud import LabelledCloud
-from semcal_ros.engine.labels import (CITYSCAPES, INVALID, MOVING_KITTI, SEMANTIC_KITTI,
-                                      VEHICLE_KITTI)
+from semcal_ros.engine.labels import (CITYSCAPES, INVALID, KITTI_ID, MOVING_KITTI,
+                                      SEMANTIC_KITTI, VEHICLE_KITTI)
 from semcal_ros.engine.pose import Pose
 from semcal_ros.io import files, ply
 from semcal_ros.io.scene_scans import write_scan_poses
@@ -47,6 +49,14 @@ from semcal_ros.workflows.scene_labels import label_shares, mark_moved_vehicles
 #: The map builder's defaults (``map_builder``'s ``mapping.*``): the one source of a scene map's
 #: ``d_max`` and ``voxel`` when the command is not given them.
 MAP_DEFAULTS = MapBuildParams()
+
+#: ``loss.blind_rows`` for a map whose near ground rings lie more than
+#: :data:`SPARSE_GROUND_GAP_DEG` apart (docs/engine.md "The lidar's blind zone": 0.2 measured on
+#: PJLab's frames, whose lidar's lowest rings are 6 and 5 deg apart; KITTI's HDL-64E at most 0.84)
+SPARSE_GROUND_BLIND_ROWS = 0.2
+SPARSE_GROUND_GAP_DEG = 2.0
+GROUND_KITTI = tuple(KITTI_ID[k] for k in ("road", "parking", "sidewalk", "other-ground",
+                                           "terrain"))
 
 
 def reachable_crop_top(map_cloud: LabelledCloud, camera: CameraModel, initial: Pose,
@@ -67,6 +77,33 @@ def reachable_crop_top(map_cloud: LabelledCloud, camera: CameraModel, initial: P
     top = float(np.partition(uv[inside, 1], min_points - 1)[min_points - 1])
     rows = top - camera.fy * math.tan(math.radians(margin_deg))
     return max(0.0, math.floor(100.0 * rows / camera.height) / 100.0)
+
+
+def near_ground_gap_deg(map_cloud: LabelledCloud, camera: CameraModel, initial: Pose,
+                        below_deg: float = 5.0, max_range: float = 30.0,
+                        min_points: int = 50) -> float:
+    """Largest gap (deg) between the elevations of the near ground points ahead of the camera.
+
+    Elevation is seen from the map's origin (the anchor scan's lidar), over the ground-labelled
+    points (:data:`GROUND_KITTI`) more than ``below_deg`` below it, within ``max_range`` m, that
+    fall in the image's columns from the initial pose (so a gap behind the camera does not
+    count; 5 deg keeps far-field occlusions by cars out). On a lidar with rings a fraction of a
+    degree apart (or a map of several scans) this is under 1 deg; PJLab's lowest rings are 6 deg
+    apart. 0 with fewer than ``min_points`` such points (nothing to judge by).
+    """
+    ground = np.isin(map_cloud.label, GROUND_KITTI)
+    xyz = map_cloud.xyz[ground]
+    pts = initial.transform_points(xyz)
+    front = pts[:, 2] > 0.5
+    uv, _ = camera.project(pts[front])
+    ahead = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width)
+    xyz = xyz[front][ahead]
+    rng = np.hypot(xyz[:, 0], xyz[:, 1])
+    elevation = np.degrees(np.arctan2(xyz[:, 2], rng))
+    elevation = np.sort(elevation[(elevation < -below_deg) & (rng < max_range)])
+    if len(elevation) < min_points:
+        return 0.0
+    return float(np.max(np.diff(elevation)))
 
 
 @dataclass
@@ -97,7 +134,9 @@ class RealSceneOptions:
     merge_road_sidewalk: bool = True
     crop_margin_deg: float = 5.0  # pitch margin of the crop_top row (the search's pitch bound)
     crop_radius: float = 0.0  # > 0: render.crop_radius in calibrator.yaml (m)
-    blind_rows: float = 0.0  # > 0: loss.blind_rows in calibrator.yaml (the lidar's blind zone)
+    # loss.blind_rows in calibrator.yaml (the lidar's blind zone); None: from the data
+    # (SPARSE_GROUND_BLIND_ROWS where near_ground_gap_deg > SPARSE_GROUND_GAP_DEG, else none)
+    blind_rows: float | None = None
     seed: int = 0  # initial.yaml's perturbation
     kind: str = "real"
     camera_name: str = "camera"
@@ -116,6 +155,7 @@ class RealSceneReport:
     removed_points: int
     labels_source: str
     seconds: float
+    ground_gap_deg: float = 0.0  # near_ground_gap_deg: the near ground rings' largest gap
 
 
 def write_real_scene(inputs: RealSceneInputs, out: str | Path,
@@ -166,8 +206,9 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
         m = np.linalg.inv(inputs.t_cam_lidar)  # camera in the lidar (= map) frame
         truth = Pose.from_matrix(m[:3, :3], m[:3, 3])
     initial = inputs.initial or perturbed_initial(truth, np.random.default_rng(options.seed))
+    ground_gap = near_ground_gap_deg(map_cloud, camera, initial)
     engine = options.engine if options.engine is not None else derived_engine_settings(
-        map_cloud, camera, initial, options)
+        map_cloud, camera, initial, options, ground_gap)
 
     out.mkdir(parents=True, exist_ok=True)
     ply.write_ply(out / "map.ply", map_cloud)
@@ -193,7 +234,7 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
         out, len(map_cloud), [len(c) for c in inputs.scans],
         label_shares(map_cloud.label, SEMANTIC_KITTI),
         label_shares(labels, CITYSCAPES, skip=(INVALID,)), engine, moved, removed_points,
-        labels_source, time.perf_counter() - start)
+        labels_source, time.perf_counter() - start, ground_gap)
     (out / "scene.yaml").write_text(yaml.safe_dump({
         "kind": options.kind,
         "scans": list(inputs.scan_names),
@@ -218,12 +259,18 @@ def write_real_scene(inputs: RealSceneInputs, out: str | Path,
 
 
 def derived_engine_settings(map_cloud: LabelledCloud, camera: CameraModel, initial: Pose,
-                            options: RealSceneOptions) -> dict:
-    """The ``engine:`` group this sensor pair needs, from the data and the initial guess."""
+                            options: RealSceneOptions, ground_gap: float | None = None) -> dict:
+    """The ``engine:`` group this sensor pair needs, from the data and the initial guess
+    (``ground_gap``: :func:`near_ground_gap_deg`, computed here when not given)."""
     engine: dict = {"loss": {"crop_top": reachable_crop_top(map_cloud, camera, initial,
                                                             options.crop_margin_deg)}}
-    if options.blind_rows > 0:
-        engine["loss"]["blind_rows"] = options.blind_rows
+    blind_rows = options.blind_rows
+    if blind_rows is None:
+        if ground_gap is None:
+            ground_gap = near_ground_gap_deg(map_cloud, camera, initial)
+        blind_rows = SPARSE_GROUND_BLIND_ROWS if ground_gap > SPARSE_GROUND_GAP_DEG else 0.0
+    if blind_rows > 0:
+        engine["loss"]["blind_rows"] = blind_rows
     labels: dict = {}
     if options.merge_road_sidewalk:
         labels["merge"] = ["sidewalk:road"]
@@ -247,7 +294,11 @@ def calibrator_yaml(engine: dict, derived: bool = True) -> str:
                 "#     them);\n"
                 "#   labels.merge sidewalk:road: neither labeller draws that border reliably;\n"
                 "#   labels.parked_vehicles: parked vehicles are in the map and count (moving\n"
-                "#     ones were removed); absent with --remove-vehicles.\n")
+                "#     ones were removed); absent with --remove-vehicles;\n"
+                "#   loss.blind_rows (when present): the lidar's near ground rings lie more than\n"
+                f"#     {SPARSE_GROUND_GAP_DEG:g} deg apart ahead of the camera, so the road below\n"
+                "#     its lowest drawn point is left out of the likelihood (or --blind-rows\n"
+                "#     was given).\n")
     else:
         head = ("# The paper's KITTI settings (Tsaregorodtsev et al. 2022, Sec. IV): only the bottom\n"
                 "# half of the image, road and sidewalk merged in both domains, map cropped to 75 m\n"
