@@ -129,11 +129,33 @@ def scan_samples(xyz: np.ndarray, labels: np.ndarray, intensity: np.ndarray | No
     return feats.values[x > min_x], target[x > min_x]
 
 
+def with_large_vehicles(sw, count: int, rng: np.random.Generator):
+    """The scene world's static mesh with ``count`` buses and lorries parked beside its survey
+    drive (3-4.5 m to either side of a random drive pose, along it), as a ray-castable World."""
+    from scipy.spatial.transform import Rotation
+
+    from semcal_tools.scenes import props
+    from semcal_tools.scenes.mesh import LabelledMesh
+    from semcal_tools.scenes.sensors import World
+
+    parts = [sw.world.static]
+    for _ in range(count):
+        i = int(rng.integers(len(sw.times)))
+        yaw = float(Rotation.from_quat(sw.quats[i]).as_euler("zyx")[0])
+        side = rng.choice((-1.0, 1.0)) * rng.uniform(3.0, 4.5)
+        xy = np.asarray(sw.positions[i][:2], float) + side * np.array([-np.sin(yaw), np.cos(yaw)])
+        heading = yaw + (np.pi if rng.random() < 0.5 else 0.0)
+        parts.append(props.large_vehicle_mesh(rng).moved(heading, (xy[0], xy[1], 0.0)))
+    return World(LabelledMesh.concat(parts), sw.world.threads)
+
+
 def synthetic_samples(kinds: tuple[str, ...], seeds: range, scans_per_sensor: int,
                       rng: np.random.Generator, log=print,
-                      sensors: tuple[Sensor, ...] = SENSORS) -> tuple[np.ndarray, np.ndarray]:
+                      sensors: tuple[Sensor, ...] = SENSORS,
+                      large_vehicles: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Features and targets of simulated scans: every kind x seed world, every sensor at
-    ``scans_per_sensor`` random places of the survey drive (the mast lidar at the camera mast)."""
+    ``scans_per_sensor`` random places of the survey drive (the mast lidar at the camera mast);
+    ``large_vehicles`` buses and lorries added beside the drive of each world."""
     from scipy.spatial.transform import Rotation
 
     from semcal_tools.scenes.generate import SceneOptions, scene_world
@@ -144,6 +166,9 @@ def synthetic_samples(kinds: tuple[str, ...], seeds: range, scans_per_sensor: in
         for seed in seeds:
             t0 = time.perf_counter()
             sw = scene_world(kind, seed, "ideal", SceneOptions(write_bag=False, threads=0))
+            # their own random stream: the scans' places are those drawn without them
+            world = (with_large_vehicles(sw, large_vehicles, np.random.default_rng(
+                [seed, kinds.index(kind), 41])) if large_vehicles else sw.world)
             n_pts = 0
             for sensor in sensors:
                 spec = LidarSpec(max(sensor.lines, 2), sensor.fov_up, sensor.fov_down,
@@ -160,7 +185,7 @@ def synthetic_samples(kinds: tuple[str, ...], seeds: range, scans_per_sensor: in
                         position[2] = sensor.height
                     from semcal_tools.scenes.actors import actors_at
 
-                    xyz, intensity, label = scan(sw.world, spec, heading.as_matrix(), position,
+                    xyz, intensity, label = scan(world, spec, heading.as_matrix(), position,
                                                  actors_at(sw.scan_actors, float(sw.times[i])),
                                                  rng, sensor.directions(rng).astype(np.float32))
                     if len(xyz) < 500:
@@ -249,6 +274,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="samples per class of the SemanticKITTI source (all its views)")
     ap.add_argument("--narrow-lidar", action="store_true",
                     help="also scan the synthetic worlds with the narrow top-mounted lidar")
+    ap.add_argument("--large-vehicles", type=int, default=0, metavar="N",
+                    help="N buses and lorries parked beside each synthetic world's drive")
     ap.add_argument("--cap", type=int, default=20_000, help="samples per class and source")
     ap.add_argument("--trees", type=int, default=20)
     ap.add_argument("--depth", type=int, default=18)
@@ -271,7 +298,8 @@ def main(argv: list[str] | None = None) -> int:
         lo, hi = (int(v) for v in args.seeds.split("-"))
         x, y = synthetic_samples(tuple(args.kinds.split(",")), range(lo, hi + 1),
                                  args.scans_per_sensor, rng,
-                                 sensors=SENSORS + ((NARROW_SENSOR,) if args.narrow_lidar else ()))
+                                 sensors=SENSORS + ((NARROW_SENSOR,) if args.narrow_lidar else ()),
+                                 large_vehicles=args.large_vehicles)
         sources.append(("synthetic", x, y))
         if args.samples_out:
             np.savez_compressed(args.samples_out, x=x, y=y)

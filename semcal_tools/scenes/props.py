@@ -26,6 +26,8 @@ TRUNK = KITTI_ID["trunk"]
 POLE = KITTI_ID["pole"]
 TRAFFIC_SIGN = KITTI_ID["traffic-sign"]
 CAR = KITTI_ID["car"]
+BUS = KITTI_ID["bus"]
+TRUCK = KITTI_ID["truck"]
 MOVING_CAR = KITTI_ID["moving-car"]
 MOVING_PERSON = KITTI_ID["moving-person"]
 
@@ -224,6 +226,39 @@ def car_mesh(rng: np.random.Generator, label: int) -> LabelledMesh:
         for sy in (-1, 1):
             mb.add(*box((sx * length * 0.32, sy * (width / 2 - 0.15)), (0.6, 0.25), 0.0, 0.35),
                    label, (0.05, 0.05, 0.05))
+    return mb.build()
+
+
+def large_vehicle_mesh(rng: np.random.Generator) -> LabelledMesh:
+    """A bus or a lorry in its own frame (x forward, centred, on z = 0), classes bus / truck.
+
+    Not in the scene layouts (their images and maps stay as they are): the point labeller's
+    training adds them (``train_point_labeller --large-vehicles``), because a vehicle 2.5-4 m
+    tall seen by another lidar was labelled vegetation and building when cars (tops 1.4-1.9 m)
+    were the only vehicles it had seen (docs/segmentation.md).
+    """
+    mb = MeshBuilder()
+    width = rng.uniform(2.4, 2.55)
+    paint = vary(rng, CAR_PAINT[int(rng.integers(len(CAR_PAINT)))], 0.05)
+    if rng.random() < 0.5:  # a bus: one long box with a dark window band
+        length, top = rng.uniform(9.0, 12.5), rng.uniform(2.9, 3.4)
+        mb.add(*box((0, 0), (length, width), 0.35, top), BUS, paint)
+        mb.add(*box((0, 0), (length - 0.2, width + 0.02), 1.2, top - 0.5), BUS, (0.05, 0.06, 0.07))
+        axles = (0.35 * length, -0.3 * length)
+        label = BUS
+    else:  # a lorry: cab and a taller box body behind it
+        length, top = rng.uniform(6.5, 10.0), rng.uniform(3.0, 3.9)
+        cab = rng.uniform(1.8, 2.3)
+        mb.add(*box((length / 2 - cab / 2, 0), (cab, width), 0.45, rng.uniform(2.6, 3.0)), TRUCK,
+               paint)
+        mb.add(*box((-cab / 2 - 0.1, 0), (length - cab - 0.2, width), 0.9, top), TRUCK,
+               vary(rng, (0.8, 0.8, 0.78), 0.1))
+        axles = (length / 2 - cab / 2, -0.35 * length)
+        label = TRUCK
+    for ax in axles:
+        for sy in (-1, 1):
+            mb.add(*box((ax, sy * (width / 2 - 0.2)), (1.0, 0.35), 0.0, 0.5), label,
+                   (0.05, 0.05, 0.05))
     return mb.build()
 
 
