@@ -52,7 +52,7 @@ MAP_DEFAULTS = MapBuildParams()
 
 #: ``loss.blind_rows`` for a map whose near ground rings lie more than
 #: :data:`SPARSE_GROUND_GAP_DEG` apart (docs/engine.md "The lidar's blind zone": 0.2 measured on
-#: PJLab's frames, whose lidar's lowest rings are 6 and 5 deg apart; KITTI's HDL-64E at most 0.84)
+#: PJLab's frames, whose lidar's lowest rings are 6 and 5 deg apart; KITTI's HDL-64E at most 0.58)
 SPARSE_GROUND_BLIND_ROWS = 0.2
 SPARSE_GROUND_GAP_DEG = 2.0
 GROUND_KITTI = tuple(KITTI_ID[k] for k in ("road", "parking", "sidewalk", "other-ground",
