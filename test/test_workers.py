@@ -2,16 +2,27 @@
 nested calls in line, and a calibration that ends where it ends one step after another."""
 
 import threading
+from dataclasses import replace
 
 import numba
 import numpy as np
 
 from semcal_ros.engine import workers
 from semcal_ros.engine.frames import FrameSet
-from semcal_ros.engine.params import CalibrationParams, VerificationParams
+from semcal_ros.engine.params import (
+    CalibrationParams, QualityParams, ScheduleParams, VerificationParams,
+)
 from semcal_ros.engine.problem import Problem
 from semcal_ros.engine.search import solve
 from semcal_tools.synthetic import PERTURBED_START, camera
+
+#: Short searches: what is compared is the two ways of running them, not how far they get, and
+#: equal paths are equal at any length (the default schedule made these two tests 49 s of the
+#: suite). Two verification starts and the evidence's parts still run side by side.
+SHORT = CalibrationParams(
+    schedule=ScheduleParams(max_evaluations=(60, 30, 20)),
+    verification=VerificationParams(starts=2),
+    quality=QualityParams(evidence_evaluations=15))
 
 
 def test_side_by_side_keeps_the_order_and_runs_nested_calls_in_line():
@@ -37,12 +48,12 @@ def test_a_calibration_side_by_side_ends_where_one_step_after_another_does(world
     """The starts' coarse stages and the evidence's parts run side by side on the workers; with
     one thread (no workers) the same searches run in turn on the renderer's pool. Same pose,
     evaluations, history (joined in order) and uncertainty."""
-    side = solve(Problem(world, target, camera(), PERTURBED_START.translation),
+    side = solve(Problem(world, target, camera(), PERTURBED_START.translation, SHORT),
                  PERTURBED_START, seed=0)
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
-        in_turn = solve(Problem(world, target, camera(), PERTURBED_START.translation),
+        in_turn = solve(Problem(world, target, camera(), PERTURBED_START.translation, SHORT),
                         PERTURBED_START, seed=0)
     finally:
         numba.set_num_threads(threads)
@@ -55,7 +66,7 @@ def test_a_calibration_side_by_side_ends_where_one_step_after_another_does(world
 def test_a_frame_set_side_by_side_ends_where_one_step_after_another_does(world, target):
     """Two frames: the evidence's parts (each frame alone) are the set's own frames, share one
     E step taken for both, and run side by side; the same answer as in turn."""
-    params = CalibrationParams(verification=VerificationParams(starts=1))
+    params = replace(SHORT, verification=VerificationParams(starts=1))
 
     def rig() -> FrameSet:
         return FrameSet([Problem(world, target, camera(), PERTURBED_START.translation, params)
