@@ -26,7 +26,7 @@ demo: $(STAMP)
 # SEMCAL_TEST_ORDER=reverse runs every file's tests in reverse order (tests stand alone).
 TEST_WORKERS ?= 3
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder test
 
 # The engine and node tests again under arithmetic that differs the way another machine's does,
 # the data unchanged (semcal_ros/engine/numerics.py): one render thread instead of two, the map's
@@ -43,7 +43,7 @@ test-perturbed: $(STAMP)
 	@fail=0; log=$$(mktemp); for p in $(PERTURBATIONS); do \
 	  echo "== $$p"; \
 	  env "$$(echo $$p | tr , ' ')" $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile \
-	    -p no:cacheprovider $(PERTURBED_TESTS) >$$log 2>&1 || fail=1; \
+	    --no-loadscope-reorder -p no:cacheprovider $(PERTURBED_TESTS) >$$log 2>&1 || fail=1; \
 	  grep -E '^(FAILED|ERROR) ' $$log || true; tail -n 1 $$log; \
 	done; rm -f $$log; exit $$fail
 

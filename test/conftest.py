@@ -21,9 +21,25 @@ from typing import Callable  # noqa: E402
 import pytest  # noqa: E402
 
 
+def _file_rank(items: list[pytest.Item]) -> dict[str, int]:
+    """Per test file: 0 if it holds a test marked ``slow``, 1 if one marked ``ros`` (processes
+    that wait on each other), else 2."""
+    rank: dict[str, int] = {}
+    for item in items:
+        mark = 0 if item.get_closest_marker("slow") else 1 if item.get_closest_marker("ros") else 2
+        rank[item.nodeid.split("::")[0]] = min(rank.get(item.nodeid.split("::")[0], 2), mark)
+    return rank
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """``SEMCAL_TEST_ORDER=reverse`` runs the collected tests in reverse order: every test must
-    build the state it checks, whatever ran before it in its file (module fixtures included)."""
+    """The files holding slow tests first, then those starting ROS processes, then the rest (each
+    group in collection order): the suite's workers take whole files (``--dist loadfile``, with
+    ``--no-loadscope-reorder`` so this order is the one they follow), and a long file taken last
+    leaves one worker busy while the others idle. ``SEMCAL_TEST_ORDER=reverse`` runs the tests in
+    reverse order: every test must build the state it checks, whatever ran before it in its file
+    (module fixtures included)."""
+    rank = _file_rank(items)
+    items.sort(key=lambda item: rank[item.nodeid.split("::")[0]])  # stable: files stay whole
     if os.environ.get("SEMCAL_TEST_ORDER", "") == "reverse":
         items.reverse()
 

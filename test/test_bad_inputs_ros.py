@@ -319,6 +319,7 @@ def _startup_cases(tmp_path: Path) -> list[tuple[str, str, dict, str]]:
     ]
 
 
+@pytest.mark.slow
 def test_nodes_refuse_bad_models_bags_and_parameters_at_start(tmp_path):
     cases = _startup_cases(tmp_path)
     graph = RosGraph(tmp_path / "logs")

@@ -21,6 +21,7 @@ NEAR = Pose.from_body_rpy_deg(GROUND_TRUTH.translation + [0.2, -0.15, 0.1],
 ONE_START = CalibrationParams(verification=VerificationParams(starts=0))
 
 
+@pytest.mark.slow
 def test_cloud_and_shared_prepared_map_give_the_same_result_and_picture(world, target):
     """The CLI's way (a cloud, prepared around the start) and the node's (one prepared map
     shared by goals) end at the same pose and draw the same picture."""
@@ -41,6 +42,7 @@ def test_cloud_and_shared_prepared_map_give_the_same_result_and_picture(world, t
     assert same.mean() > 0.99, same.mean()
 
 
+@pytest.mark.slow
 def test_picture_is_the_map_over_the_camera_image_with_the_verdict(world, target):
     grey = np.full((target.shape[0], target.shape[1]), 40, np.uint8)  # a mono camera image
     out = calibrate_and_draw(world, target, camera(), NEAR, ONE_START, background=grey, seed=0)

@@ -339,6 +339,7 @@ def test_scene_cli_refuses_compressed_without_a_bag(tmp_path, capsys):
     assert "--compressed changes the bag: it cannot go with --no-bag" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_compressed_scene_bag_replays_to_a_calibration(graph, client, demo_scene, tmp_path):
     """The demo scene's bag with its camera streams compressed (what `semcal scene --compressed`
     writes), replayed by bag_player into map_builder and a calibrator that takes compressed

@@ -23,6 +23,7 @@ pytestmark = pytest.mark.ros
 PERIOD = 1.0
 
 
+@pytest.mark.slow
 def test_monitor_flags_a_moved_camera_and_survives_bad_input(tmp_path: Path, demo_scene: Path):
     from sensor_msgs.msg import CameraInfo, Image
 

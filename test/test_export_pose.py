@@ -252,6 +252,7 @@ print("TF " + yaml.safe_dump({"frame_id": tf.header.frame_id, "child_frame_id": 
 '''
 
 
+@pytest.mark.slow
 @pytest.mark.ros
 def test_tf_static_of_the_calibrator_matches_the_exported_yaml(tmp_path, demo_scene):
     rclpy = pytest.importorskip("rclpy")

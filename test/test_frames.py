@@ -116,6 +116,7 @@ def test_frames_need_one_schedule(world, target):
                   Problem(world, target, camera(), GROUND_TRUTH.translation, other)])
 
 
+@pytest.mark.slow
 def test_search_and_report_take_a_frame_set(rig):
     # one verification start exercises the frame set in the verification as two did
     params = CalibrationParams(verification=VerificationParams(starts=1))

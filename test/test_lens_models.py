@@ -167,6 +167,7 @@ def test_ros_camera_info_accepts_equidistant_and_refuses_unknown_in_one_line():
         conv.camera_info_to_model(msg)
 
 
+@pytest.mark.slow
 def test_fisheye_scene_calibrates_from_a_near_start(scene_factory):
     """A small fisheye junction (185 deg): its camera_info is equidistant, its label image the
     lens' ray cast, and a start 0.4 m / 0.8 deg off comes back within 8 cm / 0.25 deg."""

@@ -153,6 +153,7 @@ def test_named_noise_models_and_a_clear_error_for_unknown_ones():
         noisy_labels(labels, "gaussian")
 
 
+@pytest.mark.slow
 def test_a_start_beyond_the_measured_basin_is_named_and_never_good(demo_scene):
     """The synthetic junction, judged at its true pose: from a start inside the measured basin
     the verdict is good; from one 4 m / 31 deg away it is at most inconclusive and the reason

@@ -61,6 +61,7 @@ def write_kitti_bag(scene: Path, bag: Path, camera_seconds: float = 2.0) -> int:
     return len(scans)
 
 
+@pytest.mark.slow
 def test_live_kitti_frame_with_espnetv2_in_the_loop(graph, tmp_path, exported):
     from sensor_msgs.msg import Image
 

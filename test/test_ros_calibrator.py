@@ -233,6 +233,7 @@ def wait_idle(c: Calibrator, timeout: float = 30.0) -> None:
     spin_until(c.executor, lambda: c.diag().get("state") == "idle", timeout, "the engine to stop")
 
 
+@pytest.mark.slow
 def test_goal_sequences_on_one_calibrator_lose_no_result(calibrator):
     """abort -> succeed -> abort -> cancel -> succeed -> abort on one process: each result whole
     (rclpy once turned every result after the first of another severity into an empty one)."""

@@ -364,6 +364,7 @@ def bag_message_count(bag: Path, topic: str) -> int:
         reader.close()
 
 
+@pytest.mark.slow
 def test_live_pipeline_calibrates_the_demo_scene(graph, listener, demo_scene, tmp_path):
     """map_builder + calibrator, the scene's bag replayed, the action called from here."""
     from std_srvs.srv import Trigger
@@ -451,6 +452,7 @@ def test_live_pipeline_calibrates_the_demo_scene(graph, listener, demo_scene, tm
     assert builder.running() and cal.running()
 
 
+@pytest.mark.slow
 def test_map_builder_starts_over_when_time_jumps_back(graph, listener, tmp_path):
     """A bag played twice: the second pass (time back at its start) resets and rebuilds the map;
     a scan without labels is refused with the reason."""

@@ -54,6 +54,7 @@ def loss_at_calibration(demo_scene, labels: np.ndarray, reference: np.ndarray) -
     return float(checker.check(labels, reference=first).loss_calibrated)
 
 
+@pytest.mark.slow
 def test_the_monitor_checks_the_fusion_of_its_label_window(tmp_path, demo_scene):
     from sensor_msgs.msg import CameraInfo, Image
 

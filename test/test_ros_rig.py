@@ -66,6 +66,7 @@ def raw_scan(frame: str, stamp: float):
     return conv.array_to_pointcloud2(arr, conv.make_header(LIDAR, stamp))
 
 
+@pytest.mark.slow
 def test_the_calibrator_calibrates_a_moving_rig_over_its_last_frames(tmp_path, rig_scenes):
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 

@@ -112,6 +112,7 @@ def _pose(transform: Any) -> np.ndarray:
     return conv.pose_from_transform(transform).vector()
 
 
+@pytest.mark.slow
 def test_a_failed_result_is_not_published_and_bad_stream_input_is_refused(tmp_path, demo_scene):
     from semcal_ros.io.files import read_pose
     from semcal_ros.ros.client import make_goal
@@ -197,6 +198,7 @@ def test_a_failed_result_is_not_published_and_bad_stream_input_is_refused(tmp_pa
         print(graph.logs())
 
 
+@pytest.mark.slow
 def test_auto_recalibration_obeys_the_same_rule(tmp_path, demo_scene):
     """The calibration_monitor finds the camera 0.6 deg off its calibration and sends a goal
     (auto_recalibrate); the calibrator's result is failed (min_agreement 0.999 makes every

@@ -334,6 +334,7 @@ def test_voxel_filter_keeps_the_most_frequent_class_and_its_centroid():
     assert out.dtype == np.float64 and out[0, 0] == np.float64(many[0, 0])
 
 
+@pytest.mark.slow
 def test_cli_generates_a_scene_and_rejects_bad_input(tmp_path: Path):
     semcal = Path(sys.executable).with_name("semcal")
     out = tmp_path / "hw"

@@ -72,6 +72,7 @@ def test_namespaces_hold_only_loopback_and_the_link(two_hosts):
         assert outside.returncode != 0  # no default route: nothing else is reachable
 
 
+@pytest.mark.slow
 def test_vehicle_map_crosses_the_link_and_the_roadside_unit_calibrates(two_hosts, demo_scene):
     from semcal_ros.io.files import read_pose
     from semcal_ros.engine.pose import Pose, rotation_error_deg, translation_error

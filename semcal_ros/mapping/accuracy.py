@@ -9,7 +9,6 @@ responsible for.
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -70,6 +69,8 @@ def above_ground(points_lidar: np.ndarray, clearance: float = 0.3, search_radius
     near = (np.hypot(xyz[:, 0], xyz[:, 1]) < search_radius) & (xyz[:, 2] < 0)
     if near.sum() < 100:
         raise ValueError("too few points below the sensor to find the ground")
+    import open3d as o3d  # here: half a second of start-up for processes that never need it
+
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz[near]))
     o3d.utility.random.seed(seed)
     plane, _ = pcd.segment_plane(distance_threshold=0.15, ransac_n=3, num_iterations=300)

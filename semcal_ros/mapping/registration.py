@@ -22,15 +22,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import open3d as o3d
 import small_gicp
 from scipy.spatial.transform import Rotation
 
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.mapping.filters import apply_rigid, voxel_downsample
-
-_reg = o3d.pipelines.registration  # pose graph (legacy API)
-
 
 @dataclass
 class RegistrationParams:
@@ -324,6 +320,11 @@ def _optimise_graph(n: int, pairs: list[PairResult], params: RegistrationParams,
     accepted = [p for p in pairs if p.accepted]
     if not accepted:
         return nodes
+    # Open3D here, not at the top: with its plotting stack it is half a second of start-up that
+    # every process importing the map builder (the calibrator's rig pairing, the CLI) paid
+    import open3d as o3d
+
+    _reg = o3d.pipelines.registration  # pose graph (legacy API)
     graph = _reg.PoseGraph()
     for node in nodes:
         graph.nodes.append(_reg.PoseGraphNode(node))
