@@ -27,11 +27,6 @@ import numpy as np  # noqa: E402
 
 from multiframe_study import load_frame, paper_starts  # noqa: E402
 
-KITTI_NAMES = {0: "unlabeled", 10: "car", 40: "road", 44: "parking", 48: "sidewalk",
-               50: "building", 51: "fence", 70: "vegetation", 71: "trunk", 72: "terrain",
-               80: "pole", 81: "traffic-sign"}
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scenes", type=Path)
@@ -42,12 +37,13 @@ def main() -> int:
                     help="classes holding less of the map / image are not tried")
     args = ap.parse_args()
 
-    from semcal_ros.engine.labels import INVALID
+    from semcal_ros.engine.labels import INVALID, KITTI_ID
     from semcal_ros.engine.params import CalibrationParams
     from semcal_ros.engine.pose import Pose
     from semcal_ros.io import files
     from semcal_tools.protocol import initial_guesses
 
+    kitti_names = {v: k for k, v in KITTI_ID.items()}
     base = CalibrationParams()
     for line in args.runs.read_text().splitlines():
         r = json.loads(line)
@@ -74,7 +70,7 @@ def main() -> int:
             if share < args.min_share:
                 continue
             t, s = losses(dataclasses.replace(frame, map_cloud=frame.map_cloud.select(labels != c)))
-            print(f"  without map {KITTI_NAMES.get(int(c), int(c)):>12} ({share * 100:4.1f} %): "
+            print(f"  without map {kitti_names.get(int(c), int(c)):>12} ({share * 100:4.1f} %): "
                   f"truth {t:.4f}, result {s:.4f}{'  <- the truth wins' if t < s else ''}")
         image = frame.labels
         for c in np.unique(image):

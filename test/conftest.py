@@ -21,13 +21,13 @@ from typing import Callable  # noqa: E402
 import pytest  # noqa: E402
 
 
-def _file_rank(items: list[pytest.Item]) -> dict[str, int]:
+def _file_rank(items: list[pytest.Item]) -> dict[Path, int]:
     """Per test file: 0 if it holds a test marked ``slow``, 1 if one marked ``ros`` (processes
     that wait on each other), else 2."""
-    rank: dict[str, int] = {}
+    rank: dict[Path, int] = {}
     for item in items:
         mark = 0 if item.get_closest_marker("slow") else 1 if item.get_closest_marker("ros") else 2
-        rank[item.nodeid.split("::")[0]] = min(rank.get(item.nodeid.split("::")[0], 2), mark)
+        rank[item.path] = min(rank.get(item.path, 2), mark)
     return rank
 
 
@@ -39,7 +39,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     reverse order: every test must build the state it checks, whatever ran before it in its file
     (module fixtures included)."""
     rank = _file_rank(items)
-    items.sort(key=lambda item: rank[item.nodeid.split("::")[0]])  # stable: files stay whole
+    items.sort(key=lambda item: rank[item.path])  # stable: files stay whole
     if os.environ.get("SEMCAL_TEST_ORDER", "") == "reverse":
         items.reverse()
 

@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 from semcal_ros.engine.cloud import LabelledCloud
 from semcal_ros.mapping.filters import apply_rigid, voxel_downsample
 
+
 @dataclass
 class RegistrationParams:
     """Parameters of the pairwise ICP (coarse-to-fine stages) and of the pose graph."""
