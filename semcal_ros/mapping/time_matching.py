@@ -7,11 +7,16 @@ extrapolating), at most ``queue_size`` of them (oldest dropped and counted), and
 wait when the poses do not come.
 
 Time going back (a bag started over, a simulator reset) is a reset of the map, but only when it is
-sustained: ``jump_confirm`` messages in a row (scans or poses, in arrival order) more than
-``time_jump`` s older than the newest one, or ``/clock`` going back by more than ``time_jump``.
-Fewer such messages are strays (a late packet, a driver's bad stamp): dropped with a note, the
-map stays. After a jump the queued messages of the old pass are dropped, a reset is requested and
-the held-back messages of the new pass are queued.
+sustained: ``jump_confirm`` messages in a row (scans or poses, in arrival order) each more than
+``time_jump`` s older than the newest of its own stream, or ``/clock`` going back by more than
+``time_jump``. Fewer such messages are strays (a late packet, a driver's bad stamp): dropped with
+a note, the map stays. Each stream is held to its own newest stamp because one stream may run
+seconds behind the other without time going back: on a loaded machine or a slow link a pose lost
+on the wire and repaired by reliable delivery (on the writer's next heartbeat) holds back every
+later pose until then, or the pose topic is matched later than the scans'; the poses then come in
+a burst, old next to the scans but in order on their own stream. After a jump the queued
+messages of the old pass are dropped, a reset is requested and the held-back messages of the new
+pass are queued.
 
 Pure bookkeeping without ROS or threads (the map builder node holds a lock around it), so every
 rule is tested without DDS (test/test_mapping.py).
@@ -65,6 +70,7 @@ class ScanPoseMatcher:
         self.scans: deque[tuple[float, Any]] = deque()  # (stamp, scan) in arrival order
         self.poses: deque[tuple[float, Any]] = deque()  # for the builder to take
         self.newest: float | None = None  # newest stamp of a scan or pose
+        self._newest_of: dict[str, float] = {}  # newest stamp of each stream ("scan", "pose")
         self._behind: list[tuple[str, float, Any]] = []
         self._last_clock: float | None = None
         self.reset: Reset | None = None  # requested, for the builder to apply first
@@ -76,23 +82,24 @@ class ScanPoseMatcher:
     # --- arrivals ---------------------------------------------------------------------------
     def arrive(self, kind: str, stamp: float, item: Any, now: float) -> list[MatchNote]:
         """Queue a scan (``kind`` "scan") or pose ("pose") that arrived at monotonic ``now``, or
-        hold it back while it is far behind the newest stamp. Returns notes to log (strays
-        dropped, scans dropped because the queue is full and poses are missing)."""
-        newest = self.newest
-        if newest is not None and stamp < newest - self.time_jump:
+        hold it back while it is far behind the newest stamp of its stream. Returns notes to log
+        (strays dropped, scans dropped because the queue is full and poses are missing)."""
+        own = self._newest_of.get(kind)
+        if own is not None and stamp < own - self.time_jump:
             if not self.reset_on_time_jump:
-                return [self._stray(kind, stamp, newest, "reset_on_time_jump is false")]
+                return [self._stray(kind, stamp, own, "reset_on_time_jump is false")]
             self._behind.append((kind, stamp, item))
             if len(self._behind) >= self.jump_confirm:
                 return self._jump(f"{len(self._behind)} messages in a row more than "
-                                  f"{self.time_jump:g} s older than {newest:.3f} s",
+                                  f"{self.time_jump:g} s older than the newest of their stream",
                                   max(s for _, s, _ in self._behind), now)
             return []
-        notes = [self._stray(k, s, newest, f"time counts as jumped back after "
-                                           f"{self.jump_confirm} in a row")
+        notes = [self._stray(k, s, self._newest_of[k], f"time counts as jumped back after "
+                                                       f"{self.jump_confirm} in a row")
                  for k, s, _ in self._behind]  # not sustained: strays
         self._behind = []
-        self.newest = stamp if newest is None else max(newest, stamp)
+        self._newest_of[kind] = stamp if own is None else max(own, stamp)
+        self.newest = stamp if self.newest is None else max(self.newest, stamp)
         return notes + self._enqueue(kind, stamp, item, now)
 
     def clock(self, stamp: float, now: float) -> list[MatchNote]:
@@ -106,7 +113,8 @@ class ScanPoseMatcher:
     def _stray(self, kind: str, stamp: float, newest: float, why: str) -> MatchNote:
         self.strays += 1
         return MatchNote(NoteKind.STRAY, f"{kind} at {stamp:.3f} s is {newest - stamp:.1f} s "
-                                         f"older than the newest ({newest:.3f} s): dropped ({why})")
+                                         f"older than the newest {kind} ({newest:.3f} s): dropped "
+                                         f"({why})")
 
     def _jump(self, reason: str, newest: float, now: float) -> list[MatchNote]:
         previous = self.newest if self.newest is not None else newest
@@ -115,6 +123,9 @@ class ScanPoseMatcher:
         self.reset = Reset(previous, newest, reason)
         self.newest = newest
         held, self._behind = self._behind, []
+        self._newest_of = {}
+        for kind, stamp, _ in held:
+            self._newest_of[kind] = max(stamp, self._newest_of.get(kind, stamp))
         notes: list[MatchNote] = []
         for kind, stamp, item in held:
             notes += self._enqueue(kind, stamp, item, now)

@@ -46,7 +46,7 @@ class LiveMapParams:
     publish_period: float = 2.0  # s between map publications while the map changes
     queue_size: int = 50  # scans waiting for their pose or for the builder (oldest dropped)
     reset_on_time_jump: bool = True
-    time_jump: float = 1.0  # s a message may be older than the newest before it counts as behind
+    time_jump: float = 1.0  # s a message may be older than its stream's newest before it is behind
     jump_confirm: int = 3  # messages behind in a row that make a jump (fewer: strays, dropped)
     save_path: str = "map.ply"  # default file of ~/save_map
     diagnostics_period: float = 1.0  # s (0: off)

@@ -18,10 +18,10 @@ still gets it) at most every ``publish_period`` seconds while it changes. Servic
 
 Time going back (a bag started over, a simulator reset) resets the map when
 ``reset_on_time_jump`` is set, but only when it is sustained: ``jump_confirm`` messages in a row
-(scans or poses, in arrival order) more than ``time_jump`` s older than the newest one, or
-``/clock`` going back by more than ``time_jump``. Fewer such messages are strays (a late packet, a
-driver's bad stamp): they are dropped with a warning and the map stays. A reset is a warning in
-the log and in the diagnostics (``resets``, ``last_reset``).
+(scans or poses, in arrival order) each more than ``time_jump`` s older than the newest of its
+own stream, or ``/clock`` going back by more than ``time_jump``. Fewer such messages are strays
+(a late packet, a driver's bad stamp): they are dropped with a warning and the map stays. A reset
+is a warning in the log and in the diagnostics (``resets``, ``last_reset``).
 """
 
 from __future__ import annotations
