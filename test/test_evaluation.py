@@ -153,3 +153,21 @@ def test_cli_start_ranges_and_yaw_search_reach_the_protocol(demo_scene: Path, mo
     assert (p1.noise_xyz_m, p1.noise_pitch_deg, p1.noise_yaw_deg) == (0.5, 2.0, 180.0)
     assert (p2.noise_xyz_m, p2.noise_pitch_deg, p2.noise_yaw_deg) == (2.5, 5.0, 5.0)
     assert e1.search.yaw_search and not e2.search.yaw_search
+
+
+def test_the_parser_imports_no_numba_and_evaluate_checks_its_loss(capsys):
+    """Every ``semcal`` command builds the whole parser: one subcommand importing the engine's
+    loss package for its ``--loss`` choices cost every ``--help`` numba's 0.3-0.5 s."""
+    import subprocess
+    import sys
+
+    from semcal_ros.cli import main
+
+    probe = subprocess.run([sys.executable, "-c", "import sys; from semcal_ros.cli import "
+                            "build_parser; build_parser(); print('numba' in sys.modules)"],
+                           capture_output=True, text=True, check=True)
+    assert probe.stdout.strip() == "False", probe.stdout + probe.stderr
+    with pytest.raises(SystemExit):
+        main(["evaluate", "somewhere", "--loss", "l3"])
+    assert "argument --loss: invalid choice: 'l3' (choose from l2, huber, mi, likelihood, " \
+           "balanced, both, all)" in capsys.readouterr().err

@@ -6,6 +6,17 @@ import argparse
 import sys
 
 
+def _loss_choice(value: str) -> str:
+    """``--loss`` checked when evaluate runs, not when the parser is built: the loss package
+    imports numba (0.3 s), which every other ``semcal`` command would pay for its ``--help``."""
+    from semcal_ros.engine.loss import LOSS_KINDS
+
+    if value not in (*LOSS_KINDS, "both", "all"):
+        raise argparse.ArgumentTypeError(
+            f"invalid choice: {value!r} (choose from {', '.join((*LOSS_KINDS, 'both', 'all'))})")
+    return value
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "evaluate", help="the paper's protocol: many noisy starts, keep the lowest-loss runs",
@@ -18,10 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--runs", type=int, default=30, help="initial guesses per scene (default 30)")
     p.add_argument("--keep", type=int, default=10, help="lowest-loss runs kept (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial guesses (default 0)")
-    from semcal_ros.engine.loss import LOSS_KINDS
-
-    p.add_argument("--loss", default="l2", choices=(*LOSS_KINDS, "both", "all"),
-                   help="loss of the registration (default l2; all (or both) = a column each)")
+    p.add_argument("--loss", default="l2", type=_loss_choice,
+                   help="loss of the registration: a kind of engine.loss.kind (default l2), or "
+                        "all (or both) = a column each")
     p.add_argument("--config", help="ROS 2 parameter file of the engine (config/calibrator.yaml)")
     p.add_argument("--label-mapping", help="YAML changing the class alignment")
     p.add_argument("--map", help="map PLY to use instead of DIR/map.ply (relative to DIR unless "
