@@ -11,9 +11,10 @@ def _loss_choice(value: str) -> str:
     imports numba (0.3 s), which every other ``semcal`` command would pay for its ``--help``."""
     from semcal_ros.engine.loss import LOSS_KINDS
 
-    if value not in (*LOSS_KINDS, "both", "all"):
+    choices = (*LOSS_KINDS, "both", "all")
+    if value not in choices:
         raise argparse.ArgumentTypeError(
-            f"invalid choice: {value!r} (choose from {', '.join((*LOSS_KINDS, 'both', 'all'))})")
+            f"invalid choice: {value!r} (choose from {', '.join(choices)})")
     return value
 
 
