@@ -33,13 +33,14 @@ def objects(path: Path) -> list[dict]:
     from scipy.spatial import cKDTree
 
     from semcal_ros.io import lidar_scans
+    from semcal_ros.io.kitti import read_labels
     from semcal_ros.segmentation.geometric import label_scan, scan_features
     from semcal_ros.segmentation.point_features import FEATURE_NAMES
 
     reference = None
     labels_file = Path(str(path).replace("velodyne", "labels")).with_suffix(".label")
     if path.suffix == ".bin" and labels_file.is_file():
-        reference = (np.fromfile(labels_file, np.uint32) & 0xFFFF).astype(np.int64)
+        reference = read_labels(labels_file)
     cloud = lidar_scans.read_lidar_scan(path)
     index, feats = scan_features(cloud.xyz, cloud.intensity)
     predicted = label_scan(cloud.xyz, cloud.intensity)[index]
